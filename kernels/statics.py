@@ -1,0 +1,327 @@
+"""Batched shooting and Newton kernels of the static boundary-value problem.
+
+Unknowns per rod, scaled to O(1): x = [n(0) L^2 / EI, m(0) L / EI]. Residual, scaled the
+same way: r = [(n(L+) - F_tip) L^2 / EI, (m(L+) - L_tip) L / EI], so ``L |r|`` is a
+tip-displacement-like error in metres (the convergence test).
+"""
+
+import functools
+from types import SimpleNamespace
+
+import warp as wp
+
+from .layout import CONVERGED, KBT, LENGTH, MAX_ITER, NONFINITE, SINGULAR, STALLED, TIP_F, TIP_M
+from .rod import make_rod_funcs
+
+INTEGRATORS = ("euler", "rk4")
+N_PROBES = 7  # residual at the trial point + 6 forward-difference probes
+
+
+@functools.cache
+def make_static_kernels(dtype, integrator: str, model: str):
+    if integrator not in INTEGRATORS:
+        raise ValueError(f"integrator must be one of {INTEGRATORS}, got {integrator!r}")
+    rf = make_rod_funcs(dtype, model)
+    vec3, mat33 = rf.vec3, rf.mat33
+    vec6 = wp.types.vector(6, dtype)
+    mat66 = wp.types.matrix((6, 6), dtype)
+    rk4 = integrator == "rk4"
+    zero = dtype(0.0)
+    half = dtype(0.5)
+    sixth = dtype(1.0 / 6.0)
+    f64 = dtype == wp.float64
+    fd_rel = dtype(1.5e-8) if f64 else dtype(3.0e-4)
+    pivot_rel = dtype(1.0e-13) if f64 else dtype(1.0e-6)
+
+    @wp.func
+    def fd_step(x: dtype):
+        return fd_rel * wp.max(dtype(1.0), wp.abs(x))
+
+    @wp.func
+    def shoot(
+        x: vec6,
+        rod: wp.array2d(dtype=dtype),
+        ir: int,
+        tendon: wp.array3d(dtype=dtype),
+        it: int,
+        tau: wp.array2d(dtype=dtype),
+        rod_id: int,
+        grid: wp.array2d(dtype=dtype),
+        term_node: wp.array2d(dtype=int),
+        ig: int,
+        n_tendons: int,
+        pforce: wp.array3d(dtype=dtype),
+        ipf: int,
+        pnode: wp.array2d(dtype=int),
+        n_points: int,
+        store: int,
+        p_out: wp.array2d(dtype=vec3),
+        R_out: wp.array2d(dtype=mat33),
+        n_out: wp.array2d(dtype=vec3),
+        m_out: wp.array2d(dtype=vec3),
+        orth_out: wp.array(dtype=dtype),
+    ):
+        """Integrate base to tip from the scaled unknowns x; return the scaled residual."""
+        L = rod[ir, LENGTH]
+        EI = rod[ir, KBT]
+        fs = EI / (L * L)
+        ms = EI / L
+        p = vec3()
+        R = wp.identity(3, dtype)
+        n = vec3(x[0], x[1], x[2]) * fs
+        m = vec3(x[3], x[4], x[5]) * ms
+        n_nodes = grid.shape[1]
+        orth = zero
+        if store != 0:
+            p_out[rod_id, 0] = p
+            R_out[rod_id, 0] = R
+            n_out[rod_id, 0] = n
+            m_out[rod_id, 0] = m
+        n, m = rf.node_jumps(zero, R, n, m, rod, ir, tendon, it, tau, rod_id, term_node, ig,
+                             n_tendons, pforce, ipf, pnode, n_points, 0)
+        for k in range(n_nodes - 1):
+            s = grid[ig, k]
+            h = grid[ig, k + 1] - s
+            dp1, dR1, dn1, dm1 = rf.rhs(s, p, R, n, m, rod, ir, tendon, it, tau, rod_id,
+                                        term_node, ig, n_tendons, k)
+            if wp.static(rk4):
+                hh = half * h
+                sm = s + hh
+                dp2, dR2, dn2, dm2 = rf.rhs(sm, p + hh * dp1, R + hh * dR1, n + hh * dn1,
+                                            m + hh * dm1, rod, ir, tendon, it, tau, rod_id,
+                                            term_node, ig, n_tendons, k)
+                dp3, dR3, dn3, dm3 = rf.rhs(sm, p + hh * dp2, R + hh * dR2, n + hh * dn2,
+                                            m + hh * dm2, rod, ir, tendon, it, tau, rod_id,
+                                            term_node, ig, n_tendons, k)
+                dp4, dR4, dn4, dm4 = rf.rhs(s + h, p + h * dp3, R + h * dR3, n + h * dn3,
+                                            m + h * dm3, rod, ir, tendon, it, tau, rod_id,
+                                            term_node, ig, n_tendons, k)
+                hs = h * sixth
+                p = p + hs * (dp1 + dtype(2.0) * (dp2 + dp3) + dp4)
+                R = R + hs * (dR1 + dtype(2.0) * (dR2 + dR3) + dR4)
+                n = n + hs * (dn1 + dtype(2.0) * (dn2 + dn3) + dn4)
+                m = m + hs * (dm1 + dtype(2.0) * (dm2 + dm3) + dm4)
+            else:
+                p = p + h * dp1
+                R = R + h * dR1
+                n = n + h * dn1
+                m = m + h * dm1
+            R = rf.orthonormalize(R)
+            if store != 0:
+                p_out[rod_id, k + 1] = p
+                R_out[rod_id, k + 1] = R
+                n_out[rod_id, k + 1] = n
+                m_out[rod_id, k + 1] = m
+                E = wp.transpose(R) * R - wp.identity(3, dtype)
+                for a in range(3):
+                    for b in range(3):
+                        orth = wp.max(orth, wp.abs(E[a, b]))
+            n, m = rf.node_jumps(grid[ig, k + 1], R, n, m, rod, ir, tendon, it, tau, rod_id,
+                                 term_node, ig, n_tendons, pforce, ipf, pnode, n_points, k + 1)
+        if store != 0:
+            orth_out[rod_id] = orth
+        rn = (n - rf.rod_vec(rod, ir, TIP_F)) / fs
+        rm = (m - rf.rod_vec(rod, ir, TIP_M)) / ms
+        return vec6(rn[0], rn[1], rn[2], rm[0], rm[1], rm[2])
+
+    @wp.kernel(module="unique", enable_backward=False)
+    def shoot_kernel(
+        rod: wp.array2d(dtype=dtype),
+        tendon: wp.array3d(dtype=dtype),
+        tau: wp.array2d(dtype=dtype),
+        grid: wp.array2d(dtype=dtype),
+        term_node: wp.array2d(dtype=int),
+        pforce: wp.array3d(dtype=dtype),
+        pnode: wp.array2d(dtype=int),
+        n_tendons: int,
+        n_points: int,
+        x_in: wp.array(dtype=vec6),
+        active_in: wp.array(dtype=int),
+        need_jac_in: wp.array(dtype=int),
+        store: int,
+        res_out: wp.array2d(dtype=vec6),
+        p_out: wp.array2d(dtype=vec3),
+        R_out: wp.array2d(dtype=mat33),
+        n_out: wp.array2d(dtype=vec3),
+        m_out: wp.array2d(dtype=vec3),
+        orth_out: wp.array(dtype=dtype),
+    ):
+        """Thread (rod, j): j = 0 integrates the trial point, j = 1..6 its FD probes."""
+        tid = wp.tid()
+        rod_id = tid // 7
+        j = tid - rod_id * 7
+        if active_in[rod_id] == 0:
+            return
+        if j > 0 and need_jac_in[rod_id] == 0:
+            return
+        x = x_in[rod_id]
+        if j > 0:
+            x[j - 1] = x[j - 1] + fd_step(x[j - 1])
+        st = int(0)
+        if j == 0:
+            st = store
+        res_out[rod_id, j] = shoot(
+            x, rod, rod_id % rod.shape[0], tendon, rod_id % tendon.shape[0], tau, rod_id,
+            grid, term_node, rod_id % grid.shape[0], n_tendons, pforce,
+            rod_id % pforce.shape[0], pnode, n_points, st, p_out, R_out, n_out, m_out, orth_out,
+        )
+
+    @wp.func
+    def solve6(A: mat66, b: vec6):
+        """Gaussian elimination with partial pivoting; ok = 0 for a (near) singular A."""
+        scale = zero
+        for i in range(6):
+            for k in range(6):
+                scale = wp.max(scale, wp.abs(A[i, k]))
+        ok = int(1)
+        if not (scale > zero) or not wp.isfinite(scale):
+            ok = 0
+            scale = dtype(1.0)
+        tiny = scale * pivot_rel
+        for c in range(6):
+            piv = c
+            best = wp.abs(A[c, c])
+            for r in range(c + 1, 6):
+                if wp.abs(A[r, c]) > best:
+                    best = wp.abs(A[r, c])
+                    piv = r
+            if best <= tiny:
+                ok = 0
+                best = scale
+                A[c, c] = scale
+            if piv != c:
+                for k in range(6):
+                    tmp = A[c, k]
+                    A[c, k] = A[piv, k]
+                    A[piv, k] = tmp
+                tb = b[c]
+                b[c] = b[piv]
+                b[piv] = tb
+            for r in range(c + 1, 6):
+                fac = A[r, c] / A[c, c]
+                for k in range(c, 6):
+                    A[r, k] = A[r, k] - fac * A[c, k]
+                b[r] = b[r] - fac * b[c]
+        x = vec6()
+        for ii in range(6):
+            i = 5 - ii
+            acc = b[i]
+            for k in range(i + 1, 6):
+                acc = acc - A[i, k] * x[k]
+            x[i] = acc / A[i, i]
+        return x, ok
+
+    @wp.kernel(module="unique", enable_backward=False)
+    def newton_kernel(
+        rod: wp.array2d(dtype=dtype),
+        res_in: wp.array2d(dtype=vec6),
+        tol: dtype,
+        max_iter: int,
+        max_step: dtype,
+        x: wp.array(dtype=vec6),
+        r: wp.array(dtype=vec6),
+        J: wp.array(dtype=mat66),
+        xt: wp.array(dtype=vec6),
+        active: wp.array(dtype=int),
+        need_jac: wp.array(dtype=int),
+        flags: wp.array(dtype=int),
+        lam: wp.array(dtype=dtype),
+        status: wp.array(dtype=int),
+        iters: wp.array(dtype=int),
+        n_shoot: wp.array(dtype=int),
+        resnorm: wp.array(dtype=dtype),
+        n_active: wp.array(dtype=int),
+    ):
+        """One damped quasi-Newton update per rod from the residuals of ``shoot_kernel``.
+
+        flags bit 1: x/r hold an accepted point; bit 2: J was built by finite differences
+        at x (not a Broyden update); bit 4: the last trial re-evaluated x to refresh J.
+        """
+        i = wp.tid()
+        if active[i] == 0:
+            return
+        L = rod[i % rod.shape[0], LENGTH]
+        rt = res_in[i, 0]
+        fl = flags[i]
+        have_x = fl & 1
+        fresh = (fl >> 1) & 1
+        refresh = (fl >> 2) & 1
+        nj = need_jac[i]
+        n_shoot[i] = n_shoot[i] + 1 + 6 * nj
+        it = iters[i] + 1
+        iters[i] = it
+        finite = wp.isfinite(wp.length_sq(rt))
+        accept = finite
+        if have_x != 0 and refresh == 0:
+            accept = finite and wp.length(rt) < wp.length(r[i])
+        if accept:
+            xi = xt[i]
+            if nj != 0:
+                Jn = mat66()
+                for c in range(6):
+                    col = (res_in[i, c + 1] - rt) / fd_step(xi[c])
+                    for row in range(6):
+                        Jn[row, c] = col[row]
+                J[i] = Jn
+                fresh = 1
+            elif have_x != 0:
+                sx = xi - x[i]
+                Ji = J[i]
+                dr = (rt - r[i]) - Ji * sx
+                J[i] = Ji + wp.outer(dr, sx) / wp.dot(sx, sx)
+                fresh = 0
+            x[i] = xi
+            r[i] = rt
+            have_x = 1
+            lam[i] = dtype(1.0)
+            rn = L * wp.length(rt)
+            resnorm[i] = rn
+            if rn < tol:
+                status[i] = CONVERGED
+                active[i] = 0
+                flags[i] = 1
+                return
+        elif have_x == 0:
+            status[i] = NONFINITE
+            active[i] = 0
+            return
+        elif fresh == 0:
+            # A Broyden Jacobian led astray: rebuild it by finite differences at x.
+            need_jac[i] = 1
+            flags[i] = 1 | 4
+            xt[i] = x[i]
+            lam[i] = dtype(1.0)
+            wp.atomic_add(n_active, 0, 1)
+            return
+        else:
+            lam[i] = lam[i] * half
+            if lam[i] < dtype(1.0e-4):
+                status[i] = STALLED
+                active[i] = 0
+                return
+        need_jac[i] = 0
+        if it >= max_iter:
+            status[i] = MAX_ITER
+            active[i] = 0
+            flags[i] = have_x | (fresh << 1)
+            return
+        dx, ok = solve6(J[i], -r[i])
+        if ok == 0 or not wp.isfinite(wp.length_sq(dx)):
+            if fresh != 0:
+                status[i] = SINGULAR
+                active[i] = 0
+                return
+            need_jac[i] = 1
+            flags[i] = 1 | 4
+            xt[i] = x[i]
+            wp.atomic_add(n_active, 0, 1)
+            return
+        nd = wp.length(dx)
+        if nd > max_step:
+            dx = dx * (max_step / nd)
+        xt[i] = x[i] + lam[i] * dx
+        flags[i] = 1 | (fresh << 1)
+        wp.atomic_add(n_active, 0, 1)
+
+    return SimpleNamespace(shoot=shoot_kernel, newton=newton_kernel, vec3=vec3, mat33=mat33,
+                           vec6=vec6, mat66=mat66)

@@ -1,0 +1,11 @@
+"""tdcr-warp: batched simulation of tendon-driven continuum robots on NVIDIA Warp."""
+
+import warp as _wp
+
+_wp.config.quiet = True
+
+from .robot import InputError, PointForce, Robot, Tendon  # noqa: E402
+from .statics import StaticOptions, StaticSolution, solve_static  # noqa: E402
+
+__all__ = ["InputError", "PointForce", "Robot", "StaticOptions", "StaticSolution", "Tendon", "solve_static"]
+__version__ = "0.1.0"

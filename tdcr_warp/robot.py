@@ -1,0 +1,218 @@
+"""Batched description of tendon-driven continuum robots (host side, NumPy).
+
+Every field is either shared by the batch or given per rod: a scalar field takes a float or
+an array of shape (B,); a vector field takes shape (3,) (or (2,) for tendon offsets) or
+(B, 3). Builders validate their input and raise :class:`InputError` naming the field, the
+rod and the value, so that no bad number reaches a kernel.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .kernels import layout
+
+__all__ = ["InputError", "PointForce", "Robot", "Tendon"]
+
+
+class InputError(ValueError):
+    """Bad user input; the message names the field and the offending value."""
+
+
+def _as_field(name: str, value, tail: tuple[int, ...]) -> np.ndarray:
+    """Return ``value`` as a float64 array of shape (1 or B, *tail)."""
+    try:
+        arr = np.array(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InputError(f"{name}: expected a number or an array of numbers, got {value!r}") from None
+    if arr.shape == tail:
+        arr = arr[None]
+    if arr.ndim != len(tail) + 1 or arr.shape[1:] != tail or arr.shape[0] < 1:
+        want = f"{tail} or (B, {', '.join(map(str, tail))})" if tail else "a number or shape (B,)"
+        raise InputError(f"{name}: expected {want}, got shape {arr.shape}")
+    bad = ~np.isfinite(arr)
+    if bad.any():
+        idx = np.argwhere(bad)[0]
+        raise InputError(f"{name}: non-finite value {arr[tuple(idx)]!r} (rod {idx[0]})")
+    return arr
+
+
+def _check(name: str, arr: np.ndarray, ok: np.ndarray, what: str) -> None:
+    if not ok.all():
+        idx = np.argwhere(~ok)[0]
+        raise InputError(f"{name} must be {what}, got {arr[tuple(idx)]!r} (rod {idx[0]})")
+
+
+def _batch(fields: dict[str, np.ndarray]) -> int:
+    sizes = {k: v.shape[0] for k, v in fields.items() if v.shape[0] > 1}
+    if len(set(sizes.values())) > 1:
+        raise InputError(f"per-rod fields disagree on the batch size: {sizes}")
+    return max(sizes.values(), default=1)
+
+
+@dataclass(frozen=True)
+class Tendon:
+    """One tendon. Routing in the body (disk) frame:
+
+    r(s) = offset + helix_radius [cos(2 pi turns s / length + phase), sin(...)]
+
+    offset: (2,) or (B, 2) [m]; helix_radius, turns, phase [m, -, rad]: float or (B,);
+    length: termination arc length [m] (None: the rod length), float or (B,).
+    ``routing`` is "straight" (helix_radius must be 0) or "helix".
+    """
+
+    offset: object = (0.0, 0.0)
+    routing: str = "straight"
+    helix_radius: object = 0.0
+    turns: object = 0.0
+    phase: object = 0.0
+    length: object = None
+
+    def __post_init__(self):
+        if self.routing not in ("straight", "helix"):
+            raise InputError(f"tendon routing must be 'straight' or 'helix', got {self.routing!r}")
+        for name in ("offset", "helix_radius", "turns", "phase"):
+            tail = (2,) if name == "offset" else ()
+            object.__setattr__(self, name, _as_field(f"tendon {name}", getattr(self, name), tail))
+        if self.length is not None:
+            object.__setattr__(self, "length", _as_field("tendon length", self.length, ()))
+            _check("tendon length", self.length, self.length > 0, "positive")
+        if self.routing == "straight":
+            _check("tendon helix_radius (straight routing)", self.helix_radius,
+                   self.helix_radius == 0, "0")
+        else:
+            _check("tendon helix_radius", self.helix_radius, self.helix_radius >= 0, ">= 0")
+
+
+@dataclass(frozen=True)
+class PointForce:
+    """A point force ``force`` [N] (world frame, (3,) or (B, 3)) applied at arc length ``s`` [m]."""
+
+    s: object
+    force: object
+
+    def __post_init__(self):
+        object.__setattr__(self, "s", _as_field("point force s", self.s, ()))
+        object.__setattr__(self, "force", _as_field("point force force", self.force, (3,)))
+        _check("point force s", self.s, self.s > 0, "positive")
+
+
+@dataclass(frozen=True)
+class Robot:
+    """A batch of B tendon-driven rods clamped at the origin, leaving along +z.
+
+    length [m], youngs_modulus [Pa], poisson_ratio [-], radius [m], density [kg/m^3]:
+    float or (B,). precurvature u* [1/m] (body frame), gravity [m/s^2], tip_force [N],
+    tip_moment [N m] (world frame): (3,) or (B, 3). tendons: sequence of :class:`Tendon`;
+    point_forces: sequence of :class:`PointForce`.
+    """
+
+    length: object = 0.5
+    youngs_modulus: object = 190e9
+    poisson_ratio: object = 0.3
+    radius: object = 1e-3
+    density: object = 7800.0
+    precurvature: object = (0.0, 0.0, 0.0)
+    tendons: tuple = ()
+    gravity: object = (0.0, 0.0, 0.0)
+    tip_force: object = (0.0, 0.0, 0.0)
+    tip_moment: object = (0.0, 0.0, 0.0)
+    point_forces: tuple = ()
+    batch_size: int = field(init=False)
+
+    def __post_init__(self):
+        scalars = ("length", "youngs_modulus", "poisson_ratio", "radius", "density")
+        vectors = ("precurvature", "gravity", "tip_force", "tip_moment")
+        for name in scalars:
+            object.__setattr__(self, name, _as_field(name, getattr(self, name), ()))
+        for name in vectors:
+            object.__setattr__(self, name, _as_field(name, getattr(self, name), (3,)))
+        for name in ("length", "youngs_modulus", "radius"):
+            _check(name, getattr(self, name), getattr(self, name) > 0, "positive")
+        _check("density", self.density, self.density >= 0, ">= 0")
+        nu = self.poisson_ratio
+        _check("poisson_ratio", nu, (nu > -1) & (nu < 0.5), "in (-1, 0.5)")
+        for name, items, kind in (("tendons", self.tendons, Tendon),
+                                  ("point_forces", self.point_forces, PointForce)):
+            items = tuple(items)
+            for i, it in enumerate(items):
+                if not isinstance(it, kind):
+                    raise InputError(f"{name}[{i}]: expected {kind.__name__}, got {type(it).__name__}")
+            object.__setattr__(self, name, items)
+        fields = {n: getattr(self, n) for n in scalars + vectors}
+        for i, t in enumerate(self.tendons):
+            for n in ("offset", "helix_radius", "turns", "phase", "length"):
+                if getattr(t, n) is not None:
+                    fields[f"tendons[{i}].{n}"] = getattr(t, n)
+        for j, pf in enumerate(self.point_forces):
+            fields[f"point_forces[{j}].s"] = pf.s
+            fields[f"point_forces[{j}].force"] = pf.force
+        object.__setattr__(self, "batch_size", _batch(fields))
+        L = self.length
+        for i, t in enumerate(self.tendons):
+            if t.length is not None:
+                ok = np.broadcast_to(t.length <= L * (1 + 1e-12), np.broadcast_shapes(t.length.shape, L.shape))
+                _check(f"tendons[{i}].length (<= rod length)", np.broadcast_to(t.length, ok.shape), ok, "<= the rod length")
+        for j, pf in enumerate(self.point_forces):
+            ok = np.broadcast_to(pf.s <= L * (1 + 1e-12), np.broadcast_shapes(pf.s.shape, L.shape))
+            _check(f"point_forces[{j}].s", np.broadcast_to(pf.s, ok.shape), ok, "<= the rod length")
+
+    @property
+    def n_tendons(self) -> int:
+        return len(self.tendons)
+
+    def tendon_lengths(self) -> np.ndarray:
+        """Termination arc lengths, shape (1 or B, K) [m]."""
+        cols = [self.length if t.length is None else t.length for t in self.tendons]
+        return _stack_cols(cols)
+
+    def section(self) -> dict[str, np.ndarray]:
+        """Cross-section and stiffness per rod (leading dim 1 or B): A, I, Kse, Kbt."""
+        E, nu, r = self.youngs_modulus, self.poisson_ratio, self.radius
+        G = E / (2.0 * (1.0 + nu))
+        A = math.pi * r**2
+        Ixx = math.pi * r**4 / 4.0
+        kse = np.stack(np.broadcast_arrays(G * A, G * A, E * A), axis=-1)
+        kbt = np.stack(np.broadcast_arrays(E * Ixx, E * Ixx, G * 2.0 * Ixx), axis=-1)
+        return {"area": A, "inertia": Ixx, "kse": kse, "kbt": kbt}
+
+    def pack_rod(self) -> np.ndarray:
+        """Per-rod parameter rows, shape (1 or B, layout.ROD_WIDTH), see kernels/layout.py."""
+        sec = self.section()
+        fe = (self.density * sec["area"])[:, None] * self.gravity
+        cols = [sec["kse"], sec["kbt"], self.precurvature, fe, self.tip_force, self.tip_moment,
+                self.length[:, None]]
+        b = max(c.shape[0] for c in cols)
+        out = np.concatenate([np.broadcast_to(c, (b, c.shape[1])) for c in cols], axis=1)
+        assert out.shape[1] == layout.ROD_WIDTH
+        return out
+
+    def pack_tendons(self) -> np.ndarray:
+        """Tendon routing rows, shape (1 or B, K, layout.TENDON_WIDTH)."""
+        if not self.tendons:
+            return np.zeros((1, 0, layout.TENDON_WIDTH))
+        lengths = self.tendon_lengths()
+        rows = []
+        for k, t in enumerate(self.tendons):
+            w = 2.0 * math.pi * t.turns / lengths[:, k]
+            parts = np.broadcast_arrays(t.offset[:, 0], t.offset[:, 1], t.helix_radius, w, t.phase)
+            rows.append(np.stack(parts, axis=-1))
+        b = max(r.shape[0] for r in rows)
+        return np.stack([np.broadcast_to(r, (b, layout.TENDON_WIDTH)) for r in rows], axis=1)
+
+    def pack_point_forces(self) -> tuple[np.ndarray, np.ndarray]:
+        """Point-force arc lengths (1 or B, P) [m] and forces (1 or B, P, 3) [N]."""
+        if not self.point_forces:
+            return np.zeros((1, 0)), np.zeros((1, 0, 3))
+        s = _stack_cols([pf.s for pf in self.point_forces])
+        f = [pf.force for pf in self.point_forces]
+        b = max(x.shape[0] for x in f)
+        return s, np.stack([np.broadcast_to(x, (b, 3)) for x in f], axis=1)
+
+
+def _stack_cols(cols: list[np.ndarray]) -> np.ndarray:
+    b = max(c.shape[0] for c in cols)
+    return np.stack([np.broadcast_to(c, (b,)) for c in cols], axis=1)
