@@ -116,6 +116,11 @@ def make_rod_funcs(dtype, model: str):
         return dp, dR, dn, dm
 
     @wp.func
+    def tendon_tangent(R: mat33, v: vec3, u: vec3, r: vec3, dr: vec3):
+        """World-frame unit tangent of a tendon path p + R r."""
+        return wp.normalize(R * (wp.cross(u, r) + dr + v))
+
+    @wp.func
     def node_jumps(
         s: dtype,
         R: mat33,
@@ -136,18 +141,44 @@ def make_rod_funcs(dtype, model: str):
         n_points: int,
         node: int,
     ):
-        """Point loads at ``node``: n(s+) = n(s-) - F, m(s+) = m(s-) - L."""
+        """Point loads at ``node``: n(s+) = n(s-) - F, m(s+) = m(s-) - L.
+
+        A tendon ending here pulls with F = -tau t(s-). In the coupled model a jump of n or m
+        also kinks the tendons that go on (their tangent t depends on v, u): each pushes on
+        the backbone with tau (t(s+) - t(s-)), the delta part of the distributed tendon load.
+        It depends on the state after the jump, so it is found by fixed-point iteration
+        (contraction ~ tau r^2 / EI, far below 1 for real robots).
+        """
         v, u = strains(rod, ir, R, n, m)
+        jump = int(0)
         for k in range(n_tendons):
             if term_node[ig, k] == node:
                 r, dr, ddr = tendon_route(tendon, it, k, s)
-                pb = wp.cross(u, r) + dr + v
-                F = (-tau[rod_id, k] / wp.length(pb)) * (R * pb)
+                F = -tau[rod_id, k] * tendon_tangent(R, v, u, r, dr)
                 n = n - F
                 m = m - wp.cross(R * r, F)
+                jump = 1
         for j in range(n_points):
             if pnode[ig, j] == node:
                 n = n - vec3(pforce[ipf, j, 0], pforce[ipf, j, 1], pforce[ipf, j, 2])
+                jump = 1
+        if wp.static(coupled):
+            if jump != 0:
+                n1 = n
+                m1 = m
+                for _sweep in range(4):
+                    v2, u2 = strains(rod, ir, R, n, m)
+                    fk = vec3()
+                    lk = vec3()
+                    for k in range(n_tendons):
+                        t = tau[rod_id, k]
+                        if t > zero and term_node[ig, k] > node:
+                            r, dr, ddr = tendon_route(tendon, it, k, s)
+                            F = t * (tendon_tangent(R, v2, u2, r, dr) - tendon_tangent(R, v, u, r, dr))
+                            fk += F
+                            lk += wp.cross(R * r, F)
+                    n = n1 - fk
+                    m = m1 - lk
         return n, m
 
     @wp.func

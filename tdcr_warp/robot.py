@@ -36,14 +36,14 @@ def _as_field(name: str, value, tail: tuple[int, ...]) -> np.ndarray:
     bad = ~np.isfinite(arr)
     if bad.any():
         idx = np.argwhere(bad)[0]
-        raise InputError(f"{name}: non-finite value {arr[tuple(idx)]!r} (rod {idx[0]})")
+        raise InputError(f"{name}: non-finite value {float(arr[tuple(idx)])!r} (rod {idx[0]})")
     return arr
 
 
 def _check(name: str, arr: np.ndarray, ok: np.ndarray, what: str) -> None:
     if not ok.all():
         idx = np.argwhere(~ok)[0]
-        raise InputError(f"{name} must be {what}, got {arr[tuple(idx)]!r} (rod {idx[0]})")
+        raise InputError(f"{name} must be {what}, got {float(arr[tuple(idx)])!r} (rod {idx[0]})")
 
 
 def _batch(fields: dict[str, np.ndarray]) -> int:
@@ -155,7 +155,7 @@ class Robot:
         for i, t in enumerate(self.tendons):
             if t.length is not None:
                 ok = np.broadcast_to(t.length <= L * (1 + 1e-12), np.broadcast_shapes(t.length.shape, L.shape))
-                _check(f"tendons[{i}].length (<= rod length)", np.broadcast_to(t.length, ok.shape), ok, "<= the rod length")
+                _check(f"tendons[{i}].length", np.broadcast_to(t.length, ok.shape), ok, "<= the rod length")
         for j, pf in enumerate(self.point_forces):
             ok = np.broadcast_to(pf.s <= L * (1 + 1e-12), np.broadcast_shapes(pf.s.shape, L.shape))
             _check(f"point_forces[{j}].s", np.broadcast_to(pf.s, ok.shape), ok, "<= the rod length")

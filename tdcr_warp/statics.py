@@ -220,7 +220,7 @@ def _check_tensions(robot: Robot, tensions) -> np.ndarray:
     bad = ~np.isfinite(tau) | (tau < 0)
     if bad.any():
         b, k = np.argwhere(bad)[0]
-        raise InputError(f"tensions[{b}][{k}] must be a finite number >= 0 (tendons only pull), got {tau[b, k]!r}")
+        raise InputError(f"tensions[{b}][{k}] must be a finite number >= 0 (tendons only pull), got {float(tau[b, k])!r}")
     return tau
 
 
