@@ -33,3 +33,12 @@ STATUS_NAMES = {
     SINGULAR: "singular Jacobian",
     STALLED: "line search stalled",
 }
+
+# ``dyn`` array, shape (1 or B, DYN_WIDTH): dynamics parameters, SI units.
+#   RHOA     mass per length rho A [kg/m]
+#   RHOJ..+2 rotational inertia per length rho (Ixx, Iyy, 2 Ixx) [kg m]
+#   BSE..+2  shear/extension damping diagonal [N s]
+#   BBT..+2  bending/torsion damping diagonal [N m^2 s]
+#   DRAG..+2 square-law drag diagonal C [kg/m^2]
+RHOA, RHOJ, BSE, BBT, DRAG = 0, 1, 4, 7, 10
+DYN_WIDTH = 13

@@ -1,4 +1,4 @@
-"""Batched shooting and Newton kernels of the static boundary-value problem.
+"""Batched shooting and Newton kernels: statics, and one BDF-alpha time step of dynamics.
 
 Unknowns per rod, scaled to O(1): x = [n(0) L^2 / EI, m(0) L / EI]. Residual, scaled the
 same way: r = [(n(L+) - F_tip) L^2 / EI, (m(L+) - L_tip) L / EI], so ``L |r|`` is a
@@ -18,17 +18,24 @@ N_PROBES = 7  # residual at the trial point + 6 forward-difference probes
 
 
 @functools.cache
-def make_static_kernels(dtype, integrator: str, model: str):
+def make_shooting_kernels(dtype, integrator: str, model: str, dynamic: bool = False):
+    """Shooting and Newton kernels for one precision, integrator, tendon model and physics.
+
+    ``dynamic``: one BDF-alpha time step (needs ``RodArgs.dyn``, ``hist``, ``ycur``, ``c0``);
+    otherwise statics (those fields are not read).
+    """
     if integrator not in INTEGRATORS:
         raise ValueError(f"integrator must be one of {INTEGRATORS}, got {integrator!r}")
-    rf = make_rod_funcs(dtype, model)
-    vec3, mat33 = rf.vec3, rf.mat33
+    rf = make_rod_funcs(dtype, model, dynamic)
+    vec3, mat33, RodArgs = rf.vec3, rf.mat33, rf.RodArgs
     vec6 = wp.types.vector(6, dtype)
     mat66 = wp.types.matrix((6, 6), dtype)
     rk4 = integrator == "rk4"
+    stages = 4 if rk4 else 1
     zero = dtype(0.0)
     half = dtype(0.5)
     sixth = dtype(1.0 / 6.0)
+    two = dtype(2.0)
     f64 = dtype == wp.float64
     fd_rel = dtype(1.5e-8) if f64 else dtype(3.0e-4)
     pivot_rel = dtype(1.0e-13) if f64 else dtype(1.0e-6)
@@ -37,134 +44,120 @@ def make_static_kernels(dtype, integrator: str, model: str):
     def fd_step(x: dtype):
         return fd_rel * wp.max(dtype(1.0), wp.abs(x))
 
+    @wp.struct
+    class Shapes:
+        """Per-node outputs of the evaluation at the trial point, (B, N+1) each."""
+
+        p: wp.array2d(dtype=vec3)
+        R: wp.array2d(dtype=mat33)
+        n: wp.array2d(dtype=vec3)
+        m: wp.array2d(dtype=vec3)
+        q: wp.array2d(dtype=vec3)  # dynamics only
+        w: wp.array2d(dtype=vec3)  # dynamics only
+        orth: wp.array(dtype=dtype)  # max |R^T R - I| over the nodes
+
     @wp.func
-    def shoot(
-        x: vec6,
-        rod: wp.array2d(dtype=dtype),
-        ir: int,
-        tendon: wp.array3d(dtype=dtype),
-        it: int,
-        tau: wp.array2d(dtype=dtype),
-        rod_id: int,
-        grid: wp.array2d(dtype=dtype),
-        term_node: wp.array2d(dtype=int),
-        ig: int,
-        n_tendons: int,
-        pforce: wp.array3d(dtype=dtype),
-        ipf: int,
-        pnode: wp.array2d(dtype=int),
-        n_points: int,
-        store: int,
-        p_out: wp.array2d(dtype=vec3),
-        R_out: wp.array2d(dtype=mat33),
-        n_out: wp.array2d(dtype=vec3),
-        m_out: wp.array2d(dtype=vec3),
-        orth_out: wp.array(dtype=dtype),
-    ):
+    def store_node(out: Shapes, b: int, k: int, p: vec3, R: mat33, n: vec3, m: vec3, q: vec3, w: vec3):
+        out.p[b, k] = p
+        out.R[b, k] = R
+        out.n[b, k] = n
+        out.m[b, k] = m
+        if wp.static(dynamic):
+            out.q[b, k] = q
+            out.w[b, k] = w
+
+    @wp.func
+    def shoot(x: vec6, a: RodArgs, b: int, store: int, out: Shapes):
         """Integrate base to tip from the scaled unknowns x; return the scaled residual."""
-        L = rod[ir, LENGTH]
-        EI = rod[ir, KBT]
+        L = a.rod[b % a.rod.shape[0], LENGTH]
+        EI = a.rod[b % a.rod.shape[0], KBT]
         fs = EI / (L * L)
         ms = EI / L
         p = vec3()
         R = wp.identity(3, dtype)
         n = vec3(x[0], x[1], x[2]) * fs
         m = vec3(x[3], x[4], x[5]) * ms
-        n_nodes = grid.shape[1]
+        q = vec3()
+        w = vec3()
+        ig = b % a.grid.shape[0]
+        n_int = a.grid.shape[1] - 1
+        jslot = n_int * stages  # first of the two slots per node used by the jumps
         orth = zero
         if store != 0:
-            p_out[rod_id, 0] = p
-            R_out[rod_id, 0] = R
-            n_out[rod_id, 0] = n
-            m_out[rod_id, 0] = m
-        n, m = rf.node_jumps(zero, R, n, m, rod, ir, tendon, it, tau, rod_id, term_node, ig,
-                             n_tendons, pforce, ipf, pnode, n_points, 0)
-        for k in range(n_nodes - 1):
-            s = grid[ig, k]
-            h = grid[ig, k + 1] - s
-            dp1, dR1, dn1, dm1 = rf.rhs(s, p, R, n, m, rod, ir, tendon, it, tau, rod_id,
-                                        term_node, ig, n_tendons, k)
+            store_node(out, b, 0, p, R, n, m, q, w)
+        n, m = rf.node_jumps(a, b, zero, R, n, m, q, w, 0, jslot, jslot + 1, store)
+        for k in range(n_int):
+            s = a.grid[ig, k]
+            h = a.grid[ig, k + 1] - s
+            sl = k * stages
+            dp1, dR1, dn1, dm1, dq1, dw1 = rf.rhs(a, b, s, p, R, n, m, q, w, k, sl, store)
             if wp.static(rk4):
                 hh = half * h
                 sm = s + hh
-                dp2, dR2, dn2, dm2 = rf.rhs(sm, p + hh * dp1, R + hh * dR1, n + hh * dn1,
-                                            m + hh * dm1, rod, ir, tendon, it, tau, rod_id,
-                                            term_node, ig, n_tendons, k)
-                dp3, dR3, dn3, dm3 = rf.rhs(sm, p + hh * dp2, R + hh * dR2, n + hh * dn2,
-                                            m + hh * dm2, rod, ir, tendon, it, tau, rod_id,
-                                            term_node, ig, n_tendons, k)
-                dp4, dR4, dn4, dm4 = rf.rhs(s + h, p + h * dp3, R + h * dR3, n + h * dn3,
-                                            m + h * dm3, rod, ir, tendon, it, tau, rod_id,
-                                            term_node, ig, n_tendons, k)
+                dp2, dR2, dn2, dm2, dq2, dw2 = rf.rhs(a, b, sm, p + hh * dp1, R + hh * dR1, n + hh * dn1,
+                                                      m + hh * dm1, q + hh * dq1, w + hh * dw1, k, sl + 1,
+                                                      store)
+                dp3, dR3, dn3, dm3, dq3, dw3 = rf.rhs(a, b, sm, p + hh * dp2, R + hh * dR2, n + hh * dn2,
+                                                      m + hh * dm2, q + hh * dq2, w + hh * dw2, k, sl + 2,
+                                                      store)
+                dp4, dR4, dn4, dm4, dq4, dw4 = rf.rhs(a, b, s + h, p + h * dp3, R + h * dR3, n + h * dn3,
+                                                      m + h * dm3, q + h * dq3, w + h * dw3, k, sl + 3,
+                                                      store)
                 hs = h * sixth
-                p = p + hs * (dp1 + dtype(2.0) * (dp2 + dp3) + dp4)
-                R = R + hs * (dR1 + dtype(2.0) * (dR2 + dR3) + dR4)
-                n = n + hs * (dn1 + dtype(2.0) * (dn2 + dn3) + dn4)
-                m = m + hs * (dm1 + dtype(2.0) * (dm2 + dm3) + dm4)
+                p = p + hs * (dp1 + two * (dp2 + dp3) + dp4)
+                R = R + hs * (dR1 + two * (dR2 + dR3) + dR4)
+                n = n + hs * (dn1 + two * (dn2 + dn3) + dn4)
+                m = m + hs * (dm1 + two * (dm2 + dm3) + dm4)
+                if wp.static(dynamic):
+                    q = q + hs * (dq1 + two * (dq2 + dq3) + dq4)
+                    w = w + hs * (dw1 + two * (dw2 + dw3) + dw4)
             else:
                 p = p + h * dp1
                 R = R + h * dR1
                 n = n + h * dn1
                 m = m + h * dm1
+                if wp.static(dynamic):
+                    q = q + h * dq1
+                    w = w + h * dw1
             R = rf.orthonormalize(R)
             if store != 0:
-                p_out[rod_id, k + 1] = p
-                R_out[rod_id, k + 1] = R
-                n_out[rod_id, k + 1] = n
-                m_out[rod_id, k + 1] = m
+                store_node(out, b, k + 1, p, R, n, m, q, w)
                 E = wp.transpose(R) * R - wp.identity(3, dtype)
-                for a in range(3):
-                    for b in range(3):
-                        orth = wp.max(orth, wp.abs(E[a, b]))
-            n, m = rf.node_jumps(grid[ig, k + 1], R, n, m, rod, ir, tendon, it, tau, rod_id,
-                                 term_node, ig, n_tendons, pforce, ipf, pnode, n_points, k + 1)
+                for i in range(3):
+                    for j in range(3):
+                        orth = wp.max(orth, wp.abs(E[i, j]))
+            js = jslot + 2 * (k + 1)
+            n, m = rf.node_jumps(a, b, a.grid[ig, k + 1], R, n, m, q, w, k + 1, js, js + 1, store)
         if store != 0:
-            orth_out[rod_id] = orth
-        rn = (n - rf.rod_vec(rod, ir, TIP_F)) / fs
-        rm = (m - rf.rod_vec(rod, ir, TIP_M)) / ms
+            out.orth[b] = orth
+        rn = (n - rf.rvec(a, b, TIP_F)) / fs
+        rm = (m - rf.rvec(a, b, TIP_M)) / ms
         return vec6(rn[0], rn[1], rn[2], rm[0], rm[1], rm[2])
 
     @wp.kernel(module="unique", enable_backward=False)
     def shoot_kernel(
-        rod: wp.array2d(dtype=dtype),
-        tendon: wp.array3d(dtype=dtype),
-        tau: wp.array2d(dtype=dtype),
-        grid: wp.array2d(dtype=dtype),
-        term_node: wp.array2d(dtype=int),
-        pforce: wp.array3d(dtype=dtype),
-        pnode: wp.array2d(dtype=int),
-        n_tendons: int,
-        n_points: int,
+        a: RodArgs,
         x_in: wp.array(dtype=vec6),
         active_in: wp.array(dtype=int),
         need_jac_in: wp.array(dtype=int),
-        store: int,
         res_out: wp.array2d(dtype=vec6),
-        p_out: wp.array2d(dtype=vec3),
-        R_out: wp.array2d(dtype=mat33),
-        n_out: wp.array2d(dtype=vec3),
-        m_out: wp.array2d(dtype=vec3),
-        orth_out: wp.array(dtype=dtype),
+        out: Shapes,
     ):
-        """Thread (rod, j): j = 0 integrates the trial point, j = 1..6 its FD probes."""
+        """Thread (rod, j): j = 0 integrates the trial point (and stores it), j = 1..6 its
+        forward-difference probes."""
         tid = wp.tid()
-        rod_id = tid // 7
-        j = tid - rod_id * 7
-        if active_in[rod_id] == 0:
+        b = tid // N_PROBES
+        j = tid - b * N_PROBES
+        if active_in[b] == 0:
             return
-        if j > 0 and need_jac_in[rod_id] == 0:
+        if j > 0 and need_jac_in[b] == 0:
             return
-        x = x_in[rod_id]
+        x = x_in[b]
+        store = int(1)
         if j > 0:
             x[j - 1] = x[j - 1] + fd_step(x[j - 1])
-        st = int(0)
-        if j == 0:
-            st = store
-        res_out[rod_id, j] = shoot(
-            x, rod, rod_id % rod.shape[0], tendon, rod_id % tendon.shape[0], tau, rod_id,
-            grid, term_node, rod_id % grid.shape[0], n_tendons, pforce,
-            rod_id % pforce.shape[0], pnode, n_points, st, p_out, R_out, n_out, m_out, orth_out,
-        )
+            store = 0
+        res_out[b, j] = shoot(x, a, b, store, out)
 
     @wp.func
     def solve6(A: mat66, b: vec6):
@@ -218,6 +211,7 @@ def make_static_kernels(dtype, integrator: str, model: str):
         tol: dtype,
         max_iter: int,
         max_step: dtype,
+        broyden: int,
         x: wp.array(dtype=vec6),
         r: wp.array(dtype=vec6),
         J: wp.array(dtype=mat66),
@@ -232,7 +226,10 @@ def make_static_kernels(dtype, integrator: str, model: str):
         resnorm: wp.array(dtype=dtype),
         n_active: wp.array(dtype=int),
     ):
-        """One damped quasi-Newton update per rod from the residuals of ``shoot_kernel``.
+        """One damped (quasi-)Newton update per rod from the residuals of ``shoot_kernel``.
+
+        broyden = 1: rank-one updates of J between finite-difference rebuilds (a rebuild when
+        a step fails to reduce |r|); broyden = 0: a finite-difference J at every new point.
 
         flags bit 1: x/r hold an accepted point; bit 2: J was built by finite differences
         at x (not a Broyden update); bit 4: the last trial re-evaluated x to refresh J.
@@ -299,7 +296,7 @@ def make_static_kernels(dtype, integrator: str, model: str):
                 status[i] = STALLED
                 active[i] = 0
                 return
-        need_jac[i] = 0
+        need_jac[i] = 1 - broyden  # plain Newton rebuilds J at every new point
         if it >= max_iter:
             status[i] = MAX_ITER
             active[i] = 0
@@ -323,5 +320,5 @@ def make_static_kernels(dtype, integrator: str, model: str):
         flags[i] = 1 | (fresh << 1)
         wp.atomic_add(n_active, 0, 1)
 
-    return SimpleNamespace(shoot=shoot_kernel, newton=newton_kernel, vec3=vec3, mat33=mat33,
-                           vec6=vec6, mat66=mat66)
+    return SimpleNamespace(shoot=shoot_kernel, newton=newton_kernel, RodArgs=RodArgs, Shapes=Shapes,
+                           vec3=vec3, mat33=mat33, vec6=vec6, mat66=mat66, stages=stages)

@@ -1,0 +1,20 @@
+"""Every experiment script runs end to end at tiny size (--smoke), so none rots."""
+
+import importlib.util
+import json
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+SCRIPTS = sorted((ROOT / "experiments").glob("*.py"))
+
+
+@pytest.mark.parametrize("script", SCRIPTS, ids=lambda p: p.name)
+def test_experiment_smoke(script, tmp_path):
+    spec = importlib.util.spec_from_file_location(script.stem, script)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    out = tmp_path / "out.json"
+    assert mod.main(["--smoke", "--out", str(out)]) == 0
+    assert json.loads(out.read_text())["meta"]["warp"]
