@@ -322,3 +322,40 @@ def make_shooting_kernels(dtype, integrator: str, model: str, dynamic: bool = Fa
 
     return SimpleNamespace(shoot=shoot_kernel, newton=newton_kernel, RodArgs=RodArgs, Shapes=Shapes,
                            vec3=vec3, mat33=mat33, vec6=vec6, mat66=mat66, stages=stages)
+
+
+@functools.cache
+def make_history_kernel(dtype):
+    """BDF-alpha history update per (rod, slot, quantity) after a converged time step."""
+    vec3 = wp.types.vector(3, dtype)
+
+    @wp.kernel(module="unique", enable_backward=False)
+    def advance_history(
+        ycur: wp.array3d(dtype=vec3),
+        yprev: wp.array3d(dtype=vec3),
+        hist: wp.array3d(dtype=vec3),
+        ok: wp.array(dtype=int),
+        c0: dtype,
+        c1: dtype,
+        c2: dtype,
+        d1: dtype,
+        at_rest: int,
+    ):
+        """y_h <- c1 y(i) + c2 y(i-1) + d1 y_t(i), y_t(i) = c0 y(i) + y_h; y(i-1) <- y(i).
+
+        at_rest = 1 starts from equilibrium: y(i-1) = y(i) and y_t(i) = 0, so that the next
+        step sees y_t = c0 y + y_h = 0 at the same state.
+        """
+        b, sl, c = wp.tid()
+        if ok[b] == 0:
+            return
+        y = ycur[b, sl, c]
+        yt = c0 * y + hist[b, sl, c]
+        yp = yprev[b, sl, c]
+        if at_rest != 0:
+            yt = vec3()
+            yp = y
+        hist[b, sl, c] = c1 * y + c2 * yp + d1 * yt
+        yprev[b, sl, c] = y
+
+    return advance_history

@@ -6,6 +6,8 @@ _wp.config.quiet = True
 
 from .robot import InputError, PointForce, Robot, Tendon  # noqa: E402
 from .statics import StaticOptions, StaticSolution, solve_static  # noqa: E402
+from .dynamics import Simulator, StepResult, Trajectory  # noqa: E402
 
-__all__ = ["InputError", "PointForce", "Robot", "StaticOptions", "StaticSolution", "Tendon", "solve_static"]
+__all__ = ["InputError", "PointForce", "Robot", "Simulator", "StaticOptions", "StaticSolution", "StepResult",
+           "Tendon", "Trajectory", "solve_static"]
 __version__ = "0.1.0"

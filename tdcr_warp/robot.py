@@ -121,11 +121,15 @@ class Robot:
     tip_force: object = (0.0, 0.0, 0.0)
     tip_moment: object = (0.0, 0.0, 0.0)
     point_forces: tuple = ()
+    damping_shear: object = (0.0, 0.0, 0.0)
+    damping_bending: object = (0.0, 0.0, 0.0)
+    drag: object = (0.0, 0.0, 0.0)
     batch_size: int = field(init=False)
 
     def __post_init__(self):
         scalars = ("length", "youngs_modulus", "poisson_ratio", "radius", "density")
-        vectors = ("precurvature", "gravity", "tip_force", "tip_moment")
+        vectors = ("precurvature", "gravity", "tip_force", "tip_moment", "damping_shear",
+                   "damping_bending", "drag")
         for name in scalars:
             object.__setattr__(self, name, _as_field(name, getattr(self, name), ()))
         for name in vectors:
@@ -133,6 +137,8 @@ class Robot:
         for name in ("length", "youngs_modulus", "radius"):
             _check(name, getattr(self, name), getattr(self, name) > 0, "positive")
         _check("density", self.density, self.density >= 0, ">= 0")
+        for name in ("damping_shear", "damping_bending", "drag"):
+            _check(name, getattr(self, name), getattr(self, name) >= 0, ">= 0")
         nu = self.poisson_ratio
         _check("poisson_ratio", nu, (nu > -1) & (nu < 0.5), "in (-1, 0.5)")
         for name, items, kind in (("tendons", self.tendons, Tendon),
@@ -188,6 +194,17 @@ class Robot:
         b = max(c.shape[0] for c in cols)
         out = np.concatenate([np.broadcast_to(c, (b, c.shape[1])) for c in cols], axis=1)
         assert out.shape[1] == layout.ROD_WIDTH
+        return out
+
+    def pack_dynamics(self) -> np.ndarray:
+        """Dynamics rows, shape (1 or B, layout.DYN_WIDTH), see kernels/layout.py."""
+        sec = self.section()
+        rho_a = (self.density * sec["area"])[:, None]
+        rho_j = (self.density * sec["inertia"])[:, None] * np.array([1.0, 1.0, 2.0])
+        cols = [rho_a, rho_j, self.damping_shear, self.damping_bending, self.drag]
+        b = max(c.shape[0] for c in cols)
+        out = np.concatenate([np.broadcast_to(c, (b, c.shape[1])) for c in cols], axis=1)
+        assert out.shape[1] == layout.DYN_WIDTH
         return out
 
     def pack_tendons(self) -> np.ndarray:

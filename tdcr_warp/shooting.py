@@ -235,15 +235,28 @@ class ShootingBatch:
     def set_tensions(self, tau: np.ndarray) -> None:
         self.put(self.args.tau, _pad(tau, (1,)))
 
-    def solve(self, x0: np.ndarray, J0: np.ndarray | None, *, tol: float, max_iter: int,
-              max_step: float, broyden: bool, mask: np.ndarray | None = None) -> None:
-        """Newton from scaled unknowns x0 (b, 6) [and Jacobian J0 (b, 6, 6)] for the rods in
-        ``mask`` (default all); the others keep their last results."""
+    def evaluate(self, x: np.ndarray) -> None:
+        """One integration per rod from scaled unknowns x (b, 6), storing shapes and slots."""
+        self.put(self.xt, x)
+        self.active.fill_(1)
+        self.need_jac.zero_()
+        wp.launch(self.kern.shoot, dim=self.b * N_PROBES, device=self.dev,
+                  inputs=[self.args, self.xt, self.active, self.need_jac, self.res, self.out])
+
+    def solve(self, x0: np.ndarray | None, J0: np.ndarray | None, *, tol: float, max_iter: int,
+              max_step: float, broyden: bool, mask: np.ndarray | None = None,
+              keep_jacobian: bool = False) -> None:
+        """Newton from scaled unknowns x0 (b, 6) (None: the last solution) and Jacobian J0
+        (b, 6, 6) (None: finite differences first, unless ``keep_jacobian`` reuses the last
+        one) for the rods in ``mask`` (default all); the others keep their last results."""
         k, dev = self.kern, self.dev
-        self.put(self.xt, x0)
+        if x0 is None:
+            wp.copy(self.xt, self.x)
+        else:
+            self.put(self.xt, x0)
         if J0 is not None:
             self.put(self.J, J0)
-        self.need_jac.fill_(0 if J0 is not None else 1)
+        self.need_jac.fill_(0 if (J0 is not None or keep_jacobian) else 1)
         self.put(self.active, np.ones(self.b) if mask is None else mask)
         for arr in (self.flags, self.status, self.iters, self.n_shoot):
             arr.zero_()
