@@ -14,7 +14,6 @@ from .layout import CONVERGED, KBT, LENGTH, MAX_ITER, NONFINITE, SINGULAR, STALL
 from .rod import make_rod_funcs
 
 INTEGRATORS = ("euler", "rk4")
-N_PROBES = 7  # residual at the trial point + 6 forward-difference probes
 
 
 @functools.cache
@@ -23,6 +22,11 @@ def make_shooting_kernels(dtype, integrator: str, model: str, dynamic: bool = Fa
 
     ``dynamic``: one BDF-alpha time step (needs ``RodArgs.dyn``, ``hist``, ``ycur``, ``c0``);
     otherwise statics (those fields are not read).
+
+    Jacobian probes: forward differences in statics (6 probes); central differences in
+    dynamics (12 probes), where inertia at small dt amplifies bending along s by up to
+    ~1e8 and the second-order term of a forward difference swamps the axial rows (measured:
+    forward differences stall Newton at dt = 2.5e-4 s on a 0.5 m steel rod).
     """
     if integrator not in INTEGRATORS:
         raise ValueError(f"integrator must be one of {INTEGRATORS}, got {integrator!r}")
@@ -37,8 +41,13 @@ def make_shooting_kernels(dtype, integrator: str, model: str, dynamic: bool = Fa
     sixth = dtype(1.0 / 6.0)
     two = dtype(2.0)
     f64 = dtype == wp.float64
+    central = dynamic
+    n_probes = 13 if central else 7  # the trial point + its finite-difference probes
     fd_rel = dtype(1.5e-8) if f64 else dtype(3.0e-4)
     pivot_rel = dtype(1.0e-13) if f64 else dtype(1.0e-6)
+    # A Newton step this small (relative to x) from a fresh Jacobian: x is exact to working
+    # precision, and the residual is at its round-off floor (stiff problems, e.g. small dt).
+    x_floor = dtype(1.0e-12) if f64 else dtype(1.0e-5)
 
     @wp.func
     def fd_step(x: dtype):
@@ -143,18 +152,21 @@ def make_shooting_kernels(dtype, integrator: str, model: str, dynamic: bool = Fa
         res_out: wp.array2d(dtype=vec6),
         out: Shapes,
     ):
-        """Thread (rod, j): j = 0 integrates the trial point (and stores it), j = 1..6 its
-        forward-difference probes."""
+        """Thread (rod, j): j = 0 integrates the trial point (and stores it), j >= 1 its
+        finite-difference probes."""
         tid = wp.tid()
-        b = tid // N_PROBES
-        j = tid - b * N_PROBES
+        b = tid // n_probes
+        j = tid - b * n_probes
         if active_in[b] == 0:
             return
         if j > 0 and need_jac_in[b] == 0:
             return
         x = x_in[b]
         store = int(1)
-        if j > 0:
+        if j > 6:
+            x[j - 7] = x[j - 7] - fd_step(x[j - 7])
+            store = 0
+        elif j > 0:
             x[j - 1] = x[j - 1] + fd_step(x[j - 1])
             store = 0
         res_out[b, j] = shoot(x, a, b, store, out)
@@ -244,7 +256,7 @@ def make_shooting_kernels(dtype, integrator: str, model: str, dynamic: bool = Fa
         fresh = (fl >> 1) & 1
         refresh = (fl >> 2) & 1
         nj = need_jac[i]
-        n_shoot[i] = n_shoot[i] + 1 + 6 * nj
+        n_shoot[i] = n_shoot[i] + 1 + (n_probes - 1) * nj
         it = iters[i] + 1
         iters[i] = it
         finite = wp.isfinite(wp.length_sq(rt))
@@ -257,6 +269,8 @@ def make_shooting_kernels(dtype, integrator: str, model: str, dynamic: bool = Fa
                 Jn = mat66()
                 for c in range(6):
                     col = (res_in[i, c + 1] - rt) / fd_step(xi[c])
+                    if wp.static(central):
+                        col = (res_in[i, c + 1] - res_in[i, c + 7]) / (dtype(2.0) * fd_step(xi[c]))
                     for row in range(6):
                         Jn[row, c] = col[row]
                 J[i] = Jn
@@ -314,6 +328,11 @@ def make_shooting_kernels(dtype, integrator: str, model: str, dynamic: bool = Fa
             wp.atomic_add(n_active, 0, 1)
             return
         nd = wp.length(dx)
+        if fresh != 0 and nd < x_floor * wp.max(dtype(1.0), wp.length(x[i])):
+            status[i] = CONVERGED
+            active[i] = 0
+            flags[i] = 1 | 2
+            return
         if nd > max_step:
             dx = dx * (max_step / nd)
         xt[i] = x[i] + lam[i] * dx
@@ -321,7 +340,8 @@ def make_shooting_kernels(dtype, integrator: str, model: str, dynamic: bool = Fa
         wp.atomic_add(n_active, 0, 1)
 
     return SimpleNamespace(shoot=shoot_kernel, newton=newton_kernel, RodArgs=RodArgs, Shapes=Shapes,
-                           vec3=vec3, mat33=mat33, vec6=vec6, mat66=mat66, stages=stages)
+                           vec3=vec3, mat33=mat33, vec6=vec6, mat66=mat66, stages=stages,
+                           n_probes=n_probes)
 
 
 @functools.cache

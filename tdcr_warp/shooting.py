@@ -15,7 +15,7 @@ import warp as wp
 
 from .kernels import layout
 from .kernels.rod import SLOT_WIDTH
-from .kernels.shooting import N_PROBES, make_shooting_kernels
+from .kernels.shooting import make_shooting_kernels
 from .robot import InputError, Robot
 
 PRECISIONS = {"float64": (wp.float64, np.float64), "float32": (wp.float32, np.float32)}
@@ -219,7 +219,7 @@ class ShootingBatch:
         self.n_shoot = wp.zeros(b, dtype=int, device=device)
         self.resnorm = wp.zeros(b, dtype=self.wdtype, device=device)
         self.n_active = wp.zeros(1, dtype=int, device=device)
-        self.res = wp.zeros((b, N_PROBES), dtype=k.vec6, device=device)
+        self.res = wp.zeros((b, k.n_probes), dtype=k.vec6, device=device)
         for kernel in (k.shoot, k.newton):  # compile (or load) before threads race to it
             kernel.module.load(device, 1 if device.is_cpu else 256)
 
@@ -240,7 +240,7 @@ class ShootingBatch:
         self.put(self.xt, x)
         self.active.fill_(1)
         self.need_jac.zero_()
-        wp.launch(self.kern.shoot, dim=self.b * N_PROBES, device=self.dev,
+        wp.launch(self.kern.shoot, dim=self.b * self.kern.n_probes, device=self.dev,
                   inputs=[self.args, self.xt, self.active, self.need_jac, self.res, self.out])
 
     def solve(self, x0: np.ndarray | None, J0: np.ndarray | None, *, tol: float, max_iter: int,
@@ -263,7 +263,7 @@ class ShootingBatch:
         self.lam.fill_(1.0)
         self.resnorm.fill_(np.inf)
         for _ in range(max_iter):
-            wp.launch(k.shoot, dim=self.b * N_PROBES, device=dev,
+            wp.launch(k.shoot, dim=self.b * self.kern.n_probes, device=dev,
                       inputs=[self.args, self.xt, self.active, self.need_jac, self.res, self.out])
             self.n_active.zero_()
             wp.launch(k.newton, dim=self.b, device=dev,
@@ -283,7 +283,7 @@ class ShootingBatch:
             redo &= mask.astype(bool)
         if redo.any():
             self.need_jac.zero_()
-            wp.launch(k.shoot, dim=self.b * N_PROBES, device=dev,
+            wp.launch(k.shoot, dim=self.b * self.kern.n_probes, device=dev,
                       inputs=[self.args, self.x, self.array(redo, np.int32), self.need_jac, self.res,
                               self.out])
 

@@ -1,0 +1,180 @@
+"""Checks of the batched BDF-alpha dynamics against things nobody tuned."""
+
+import numpy as np
+import pytest
+
+import tdcr_warp as tw
+from tdcr_warp.dynamics import bdf_alpha_coefficients
+
+E, NU, R, L, RHO = 190e9, 0.3, 1e-3, 0.5, 7800.0
+EI = E * np.pi * R**4 / 4
+RHO_A = RHO * np.pi * R**2
+
+
+def four_tendons():
+    return [tw.Tendon(offset=o) for o in [(0.01, 0.0), (0.0, 0.01), (-0.01, 0.0), (0.0, -0.01)]]
+
+
+def robot(**kw):
+    base = dict(length=L, youngs_modulus=E, poisson_ratio=NU, radius=R, density=RHO,
+                tendons=four_tendons(), gravity=(0.0, 0.0, -9.81))
+    base.update(kw)
+    return tw.Robot(**base)
+
+
+def test_coefficients_consistent():
+    """A constant history has zero rate: c0 + c1 + c2 = 0 for any alpha."""
+    for a in (0.0, -0.2, -0.45):
+        c0, c1, c2, d1 = bdf_alpha_coefficients(0.01, a)
+        assert abs(c0 + c1 + c2) < 1e-12
+
+
+def test_damped_run_settles_to_static_solution():
+    # Bbt = 0.008 N m^2 s damps the first bending mode near critically (zeta ~ 0.9)
+    rob = robot(damping_bending=(0.008, 0.008, 0.008), damping_shear=(1e-3, 1e-3, 1e-3), drag=(0.01, 0.01, 0.01))
+    tau = [[3.0, 0.0, 1.0, 0.5]]
+    sim = tw.Simulator(rob, [[0.0] * 4], dt=0.005, alpha=-0.2, nodes=30)
+    tr = sim.simulate(np.tile(tau, (400, 1)), 400)
+    assert tr.converged.all()
+    static = tw.solve_static(rob, tau, nodes=30)
+    err = np.abs(tr.tip_position[-1] - static.tip_position).max()
+    assert err < 1e-6, f"settled tip {err:.2e} m from the static solution"
+    moved = np.abs(tr.tip_position[0] - static.tip_position).max()
+    assert moved > 1e-3, "the test must start away from the final state"
+
+
+def test_large_dt_reproduces_statics():
+    """dt -> infinity: c0 -> 0, every inertial and damping term vanishes."""
+    rob = robot(damping_bending=(0.01, 0.01, 0.01), drag=(0.1, 0.1, 0.1))
+    tau = [[2.0, 1.0, 0.0, 0.0]]
+    sim = tw.Simulator(rob, [[0.0] * 4], dt=1e7, alpha=-0.2)
+    r = sim.step(tau)
+    static = tw.solve_static(rob, tau)
+    assert r.converged.all()
+    assert np.abs(r.tip_position - static.tip_position).max() < 1e-9
+
+
+def _release(nodes, dt, steps, alpha=0.0):
+    """Cantilever without tendons or gravity, released at rest from a small static bend."""
+    bent = tw.Robot(length=L, youngs_modulus=E, poisson_ratio=NU, radius=R, density=RHO,
+                    tip_force=(1e-3, 0.0, 0.0))
+    free = tw.Robot(length=L, youngs_modulus=E, poisson_ratio=NU, radius=R, density=RHO)
+    start = tw.solve_static(bent, np.zeros((1, 0)), nodes=nodes)
+    sim = tw.Simulator(free, np.zeros((1, 0)), dt=dt, alpha=alpha, nodes=nodes, initial=start)
+    return sim.simulate(np.zeros((steps, 0)), steps)
+
+
+def test_undamped_cantilever_first_natural_frequency():
+    f_eb = 1.8751**2 * np.sqrt(EI / (RHO_A * L**4)) / (2 * np.pi)
+    dt = 1e-3  # 180 steps per period
+    tr = _release(nodes=40, dt=dt, steps=int(2.2 / (f_eb * dt)))
+    assert tr.converged.all()
+    x = tr.tip_position[:, 0, 0]
+    crossings = []
+    for i in range(len(x) - 1):
+        if x[i] > 0 >= x[i + 1] or x[i] < 0 <= x[i + 1]:
+            crossings.append(tr.time[i] + dt * x[i] / (x[i] - x[i + 1]))
+    assert len(crossings) >= 4
+    period = 2 * np.mean(np.diff(crossings))
+    rel = abs(1 / period - f_eb) / f_eb
+    assert rel < 0.01, f"f = {1 / period:.4f} Hz vs Euler-Bernoulli {f_eb:.4f} Hz ({rel:.2%})"
+
+
+def _tip_history(dt, T, alpha, nodes=20, bbt=0.008):
+    """Tip over [0, T] under a smooth tension ramp 3 sin^2(pi t / T) N (flat at t = 0: a step
+    input has a jump in acceleration that limits any start-up to first order)."""
+    rob = robot(damping_bending=(bbt, bbt, bbt), drag=(0.01, 0.01, 0.01))
+    steps = int(round(T / dt))
+    sim = tw.Simulator(rob, [[0.0] * 4], dt=dt, alpha=alpha, nodes=nodes, tol=1e-12)
+    tr = sim.simulate(lambda i: [[3.0 * np.sin(np.pi * min((i + 1) * dt, T / 2) / T) ** 2, 0, 0, 0]], steps)
+    assert tr.converged.all()
+    return tr.tip_position[:, 0]
+
+
+@pytest.mark.parametrize("alpha", [0.0, -0.2, -0.45])
+def test_time_convergence_is_second_order(alpha):
+    """BDF-alpha measured second order for every alpha (max tip error over the run)."""
+    T = 0.16
+    ref = _tip_history(T / 160, T, alpha)
+    errs = [np.abs(_tip_history(T / n, T, alpha) - ref[::160 // n]).max() for n in (20, 40)]
+    order = np.log2(errs[0] / errs[1])
+    assert 1.7 < order < 2.3, f"alpha {alpha}: errors {errs}, order {order:.2f}"
+
+
+def test_space_convergence_at_fixed_dt():
+    dt, T = 4e-3, 0.08
+    ref = _tip_history(dt, T, -0.2, nodes=160)
+    errs = [np.abs(_tip_history(dt, T, -0.2, nodes=n) - ref).max() for n in (5, 10, 20)]
+    orders = np.log2(np.array(errs[:-1]) / np.array(errs[1:]))
+    assert np.all(orders > 3.5), f"errors {errs}, orders {orders}"
+
+
+def test_mixed_batch_matches_each_rod_alone():
+    B = 3
+    per_rod = dict(youngs_modulus=np.array([190e9, 120e9, 60e9]), density=np.array([7800.0, 17189.0, 5000.0]),
+                   damping_bending=np.array([[0.008] * 3, [0.02] * 3, [0.0] * 3]),
+                   drag=np.array([[0.01] * 3, [0.0] * 3, [0.1] * 3]))
+    tau0 = np.zeros((B, 4))
+    sched = np.zeros((B, 30, 4))
+    sched[0, 5:, 0] = 3.0
+    sched[1, :, 1] = 2.0
+    sched[2, 10:, 2] = 1.0
+    sched[2, 10:, 3] = 1.5
+    batch = tw.Simulator(robot(**per_rod), tau0, dt=0.005, alpha=-0.2, nodes=20).simulate(sched, 30)
+    assert batch.converged.all()
+    for b in range(B):
+        one = robot(**{k: v[b] for k, v in per_rod.items()})
+        alone = tw.Simulator(one, tau0[b:b + 1], dt=0.005, alpha=-0.2, nodes=20).simulate(sched[b], 30)
+        err = np.abs(alone.tip_position[:, 0] - batch.tip_position[:, b]).max()
+        assert err < 1e-12, f"rod {b}: {err:.2e} m"
+
+
+@pytest.mark.parametrize("case", [
+    dict(dt=1e-5), dict(dt=0.1), dict(alpha=-0.45), dict(alpha=0.0),
+    dict(tension=30.0), dict(youngs_modulus=1e6, dt=0.01), dict(youngs_modulus=1e12),
+])
+def test_extremes_converge_or_flag(case):
+    case = dict(case)
+    dt = case.pop("dt", 0.005)
+    alpha = case.pop("alpha", -0.2)
+    tension = case.pop("tension", 3.0)
+    rob = robot(damping_bending=(0.008, 0.008, 0.008), drag=(0.01, 0.01, 0.01), **case)
+    sim = tw.Simulator(rob, [[0.0] * 4], dt=dt, alpha=alpha, nodes=20)
+    tr = sim.simulate(np.tile([[tension, 0.0, 0.0, 0.0]], (10, 1)), 10)
+    good = tr.converged
+    assert np.isfinite(tr.tip_position[1:][good]).all()
+    assert np.isfinite(tr.residual[good]).all() and (tr.residual[good] < 1e-10).all()
+    failed = tr.failed_step >= 0
+    # a flagged rod stays flagged: no step after its failure is marked good
+    for b in np.flatnonzero(failed):
+        assert not good[tr.failed_step[b]:, b].any()
+    assert good.all() or failed.any()
+
+
+def test_failed_rod_is_frozen_and_others_go_on():
+    tau = np.array([[3.0, 0, 0, 0], [3.0, 0, 0, 0]])
+    rob = robot(damping_bending=(0.008, 0.008, 0.008))
+    sim = tw.Simulator(rob, np.zeros((2, 4)), dt=0.005, alpha=-0.2, nodes=20)
+    sim.step(tau)
+    sim.alive[1] = False  # as if rod 1 had failed: it must not move any more
+    frozen = sim.tip_position[1].copy()
+    for _ in range(5):
+        r = sim.step(tau)
+    assert np.array_equal(r.tip_position[1], frozen) and not r.converged[1]
+    ref = tw.Simulator(rob, np.zeros((1, 4)), dt=0.005, alpha=-0.2, nodes=20)
+    for _ in range(6):
+        r1 = ref.step(tau[:1])
+    assert np.abs(r1.tip_position[0] - r.tip_position[0]).max() < 1e-12
+
+
+def test_bad_dynamic_input():
+    rob = robot()
+    with pytest.raises(tw.InputError, match="dt must be a positive"):
+        tw.Simulator(rob, [[0.0] * 4], dt=0.0)
+    with pytest.raises(tw.InputError, match="alpha"):
+        tw.Simulator(rob, [[0.0] * 4], dt=0.01, alpha=0.3)
+    with pytest.raises(tw.InputError, match="damping_bending must be >= 0"):
+        robot(damping_bending=(-1.0, 0, 0))
+    sim = tw.Simulator(rob, [[0.0] * 4], dt=0.01)
+    with pytest.raises(tw.InputError, match=r"schedule: expected shape"):
+        sim.simulate(np.zeros((3, 2)), 3)
