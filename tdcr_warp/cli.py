@@ -1,0 +1,179 @@
+"""Command line: ``tdcr-warp static SCENE.toml`` and ``tdcr-warp simulate SCENE.toml``.
+
+Exit status: 0 every rod converged; 1 some rods failed (outputs written, reasons recorded);
+2 bad input (the message names the field and the value, no traceback).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import tempfile
+import time
+from dataclasses import asdict, replace
+from pathlib import Path
+
+from .robot import InputError
+
+
+def _write_atomic(path: Path, write) -> None:
+    """Write through a temporary file in the same directory, then rename."""
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix="." + path.name, suffix=".tmp")
+    os.close(fd)
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.remove(tmp)
+
+
+def _write_json(path: Path, obj) -> None:
+    def write(tmp):
+        with open(tmp, "w") as f:
+            json.dump(obj, f, indent=1)
+    _write_atomic(path, write)
+
+
+def _settings(scene, args, device) -> dict:
+    import warp as wp
+    out = asdict(scene.options)
+    out.update(device=str(device), warp=wp.__version__, tolerance_m=scene.options.tolerance)
+    return out
+
+
+def _apply_overrides(scene, args):
+    over = {k: getattr(args, k) for k in ("nodes", "integrator", "model", "precision")
+            if getattr(args, k) is not None}
+    return replace(scene, options=replace(scene.options, **over)) if over else scene
+
+
+def _print_rods(tips, ok, iters, resid, reasons, limit: int = 10) -> None:
+    for b in range(min(len(tips), limit)):
+        t = tips[b]
+        state = "ok" if ok[b] else f"FAILED ({reasons[b]})"
+        print(f"  rod {b}: tip [{t[0]: .6f} {t[1]: .6f} {t[2]: .6f}] m  iterations {iters[b]:3d}  "
+              f"residual {resid[b]:.1e} m  {state}")
+    if len(tips) > limit:
+        print(f"  ... {len(tips) - limit} more rods")
+
+
+def cmd_static(args) -> int:
+    from .plotting import plot_shapes
+    from .scene import load_scene
+    from .statics import solve_static
+
+    scene = _apply_overrides(load_scene(args.scene), args)
+    out = Path(args.out or Path("out") / Path(args.scene).stem)
+    out.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    sol = solve_static(scene.robot, scene.tensions, options=scene.options, device=args.device)
+    wall = time.perf_counter() - t0
+    B = len(sol.converged)
+    reasons = sol.failure_reasons()
+    print(f"solved {B} rod(s) in {wall:.3f} s ({scene.options.integrator}, N = {scene.options.nodes}, "
+          f"{scene.options.model}, {scene.options.precision})")
+    _print_rods(sol.tip_position, sol.converged, sol.iterations, sol.residual, reasons)
+    _write_atomic(out / "shapes.npz", lambda tmp: sol.to_npz(open(tmp, "wb")))
+    plot_shapes(sol.positions, sol.converged, out / "shapes.png")
+    results = {
+        "scene": str(args.scene), "settings": _settings(scene, args, args.device or "default"),
+        "batch_size": B, "wall_time_s": wall,
+        "tip_position": sol.tip_position.tolist(), "converged": sol.converged.tolist(),
+        "iterations": sol.iterations.tolist(), "residual": sol.residual.tolist(),
+        "rods": [{"tip_position": sol.tip_position[b].tolist(), "tip_rotation": sol.tip_rotation[b].tolist(),
+                  "converged": bool(sol.converged[b]), "status": reasons[b],
+                  "iterations": int(sol.iterations[b]), "residual": float(sol.residual[b]),
+                  "orthogonality_error": float(sol.orthogonality_error[b])} for b in range(B)],
+    }
+    _write_json(out / "results.json", results)  # last: its presence means the run is complete
+    print(f"wrote {out}/results.json, shapes.npz, shapes.png")
+    failed = int((~sol.converged).sum())
+    if failed:
+        print(f"{failed} of {B} rods did not converge (reasons in results.json)", file=sys.stderr)
+        return 1
+    return 0
+
+
+def cmd_simulate(args) -> int:
+    from .dynamics import Simulator
+    from .plotting import plot_tip_history
+    from .scene import load_scene
+
+    scene = _apply_overrides(load_scene(args.scene), args)
+    spec = scene.dynamics
+    if spec is None:
+        raise InputError(f"{args.scene}: simulate needs a [dynamics] table (dt, steps, ...)")
+    steps = args.steps or spec.steps
+    if steps > spec.steps:
+        raise InputError(f"--steps {steps} exceeds the scene's [dynamics].steps = {spec.steps}")
+    out = Path(args.out or Path("out") / Path(args.scene).stem)
+    out.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    sim = Simulator(scene.robot, scene.tensions, dt=spec.dt, alpha=spec.alpha, options=scene.options,
+                    device=args.device)
+    traj = sim.simulate(spec.schedule[:, :steps], steps, shapes_every=spec.shapes_every,
+                        progress=not args.quiet)
+    wall = time.perf_counter() - t0
+    B = sim.B
+    ok = traj.failed_step < 0
+    print(f"simulated {B} rod(s) x {steps} steps of {spec.dt} s in {wall:.2f} s "
+          f"({B * steps / wall:,.0f} rod-steps/s, real-time factor {steps * spec.dt / wall:.2f} per batch)")
+    reasons = ["ok" if f < 0 else f"failed at step {f + 1}" for f in traj.failed_step]
+    _print_rods(traj.tip_position[-1], ok, traj.iterations.max(axis=0), traj.residual[-1], reasons)
+    _write_atomic(out / "trajectory.npz", lambda tmp: traj.to_npz(open(tmp, "wb")))
+    plot_tip_history(traj.time, traj.tip_position, traj.tip_velocity, traj.tip_acceleration, out)
+    results = {
+        "scene": str(args.scene), "settings": _settings(scene, args, args.device or "default")
+        | {"dt": spec.dt, "alpha": spec.alpha, "steps": steps},
+        "batch_size": B, "wall_time_s": wall,
+        "final_tip_position": traj.tip_position[-1].tolist(), "completed": ok.tolist(),
+        "failed_step": [int(f) + 1 if f >= 0 else None for f in traj.failed_step],
+        "max_iterations": traj.iterations.max(axis=0).tolist(),
+    }
+    _write_json(out / "results.json", results)
+    print(f"wrote {out}/results.json, trajectory.npz, tip_position.png, tip_rates.png")
+    if not ok.all():
+        print(f"{int((~ok).sum())} of {B} rods failed and were frozen (failed_step in results.json)",
+              file=sys.stderr)
+        return 1
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog="tdcr-warp", description="Batched tendon-driven continuum robots on Warp.")
+    sub = ap.add_subparsers(dest="command", required=True)
+    for name, helptext in (("static", "solve the statics of a scene"),
+                           ("simulate", "run the dynamics of a scene ([dynamics] table)")):
+        p = sub.add_parser(name, help=helptext)
+        p.add_argument("scene", help="scene file (TOML)")
+        p.add_argument("--out", help="output directory (default: out/<scene name>)")
+        p.add_argument("--device", default=None, help="cpu or cuda:0 (default: Warp's default device)")
+        p.add_argument("--nodes", type=int, help="override [solver].nodes")
+        p.add_argument("--integrator", choices=["rk4", "euler"], help="override [solver].integrator")
+        p.add_argument("--model", choices=["coupled", "point"], help="override [solver].model")
+        p.add_argument("--precision", choices=["float64", "float32"], help="override [solver].precision")
+        if name == "simulate":
+            p.add_argument("--steps", type=int, help="run only the first STEPS steps")
+            p.add_argument("--quiet", action="store_true", help="no progress bar")
+    return ap
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        if args.device is not None:
+            import warp as wp
+            try:
+                wp.get_device(args.device)
+            except (RuntimeError, ValueError) as e:
+                raise InputError(f"--device {args.device!r}: {e}") from None
+        return {"static": cmd_static, "simulate": cmd_simulate}[args.command](args)
+    except InputError as e:
+        print(f"tdcr-warp: error: {e}", file=sys.stderr)
+        return 2
+    except OSError as e:
+        print(f"tdcr-warp: error: {e}", file=sys.stderr)
+        return 2

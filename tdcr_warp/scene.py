@@ -1,0 +1,206 @@
+"""TOML scenes: one file describes a batch of robots, their actuation and the solver.
+
+Tables and keys (SI units; see README "Scene format"):
+  [robot]      length, youngs_modulus, poisson_ratio, radius, density, precurvature
+  [[tendons]]  offset, routing ("straight" | "helix"), radius, turns, phase, length
+  [loads]      gravity, tip_force, tip_moment, [[loads.point_forces]] (s, force)
+  [actuation]  tensions (B rows of K), [[actuation.steps]] (start, tensions) for dynamics
+  [solver]     nodes, integrator, model, precision, tol, max_iter, max_step, jacobian, threads
+  [dynamics]   dt, alpha, steps, damping_shear, damping_bending, drag, shapes_every
+A robot scalar may be a list of B numbers and a vector a list of B vectors (per-rod values).
+Every error is an :class:`InputError` naming the table, the key and the value.
+"""
+
+from __future__ import annotations
+
+import tomllib
+from dataclasses import dataclass, fields
+from pathlib import Path
+
+import numpy as np
+
+from .robot import InputError, PointForce, Robot, Tendon
+from .shooting import check_tensions
+from .statics import StaticOptions
+
+__all__ = ["DynamicsSpec", "Scene", "load_scene", "scene_from_dict"]
+
+ROBOT_KEYS = {"length", "youngs_modulus", "poisson_ratio", "radius", "density", "precurvature"}
+TENDON_KEYS = {"offset", "routing", "radius", "turns", "phase", "length"}
+LOAD_KEYS = {"gravity", "tip_force", "tip_moment", "point_forces"}
+POINT_KEYS = {"s", "force"}
+ACTUATION_KEYS = {"tensions", "steps"}
+STEP_KEYS = {"start", "tensions"}
+DYNAMICS_KEYS = {"dt", "alpha", "steps", "damping_shear", "damping_bending", "drag", "shapes_every"}
+SOLVER_KEYS = {f.name for f in fields(StaticOptions)}
+TABLES = {"robot", "tendons", "loads", "actuation", "solver", "dynamics"}
+
+
+@dataclass(frozen=True)
+class DynamicsSpec:
+    """dt [s], alpha, steps, schedule (B, steps, K) [N] (row k: tensions of step k + 1),
+    shapes_every (0: tip only)."""
+
+    dt: float
+    alpha: float
+    steps: int
+    schedule: np.ndarray
+    shapes_every: int
+
+
+@dataclass(frozen=True)
+class Scene:
+    robot: Robot
+    tensions: np.ndarray
+    options: StaticOptions
+    dynamics: DynamicsSpec | None
+    source: dict
+
+
+def load_scene(path) -> Scene:
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except OSError as e:
+        raise InputError(f"cannot read scene {str(path)!r}: {e.strerror or e}") from None
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as e:
+        raise InputError(f"{path}: invalid TOML: {e}") from None
+    return scene_from_dict(data)
+
+
+def _table(data: dict, name: str, allowed: set[str], required: bool = False) -> dict:
+    t = data.get(name)
+    if t is None:
+        if required:
+            raise InputError(f"missing table [{name}]")
+        return {}
+    if not isinstance(t, dict):
+        raise InputError(f"[{name}] must be a table, got {t!r}")
+    _no_unknown(t, allowed, f"[{name}]")
+    return t
+
+
+def _no_unknown(t: dict, allowed: set[str], where: str) -> None:
+    for key in t:
+        if key not in allowed:
+            raise InputError(f"unknown key {key!r} in {where} (known: {', '.join(sorted(allowed))})")
+
+
+def _numbers(value, where: str):
+    """Check that value is a number or a (nested) list of numbers; return it unchanged."""
+    def ok(v):
+        if isinstance(v, list):
+            return len(v) > 0 and all(ok(x) for x in v)
+        return isinstance(v, (int, float)) and not isinstance(v, bool)
+    if not ok(value):
+        raise InputError(f"{where}: expected a number or a list of numbers, got {value!r}")
+    return value
+
+
+def _required(t: dict, key: str, where: str):
+    if key not in t:
+        raise InputError(f"missing key {key!r} in {where}")
+    return _numbers(t[key], f"{where}.{key}")
+
+
+def _integer(value, where: str) -> int:
+    if not isinstance(value, int) or isinstance(value, bool):
+        raise InputError(f"{where}: expected an integer, got {value!r}")
+    return value
+
+
+def scene_from_dict(data: dict) -> Scene:
+    _no_unknown(data, TABLES, "the scene")
+    rob = _table(data, "robot", ROBOT_KEYS, required=True)
+    robot_kw = {k: _required(rob, k, "[robot]") for k in ("length", "youngs_modulus", "poisson_ratio",
+                                                            "radius", "density")}
+    if "precurvature" in rob:
+        robot_kw["precurvature"] = _numbers(rob["precurvature"], "[robot].precurvature")
+
+    tendons = []
+    raw_tendons = data.get("tendons", [])
+    if not isinstance(raw_tendons, list):
+        raise InputError("[[tendons]] must be an array of tables")
+    for i, t in enumerate(raw_tendons):
+        where = f"[[tendons]] #{i + 1}"
+        if not isinstance(t, dict):
+            raise InputError(f"{where} must be a table, got {t!r}")
+        _no_unknown(t, TENDON_KEYS, where)
+        routing = t.get("routing", "straight")
+        if routing not in ("straight", "helix"):
+            raise InputError(f"{where}.routing must be 'straight' or 'helix', got {routing!r}")
+        kw = {"routing": routing}
+        if "offset" in t:
+            kw["offset"] = _numbers(t["offset"], f"{where}.offset")
+        elif routing == "straight":
+            raise InputError(f"missing key 'offset' in {where} (straight routing)")
+        if routing == "helix":
+            kw["helix_radius"] = _required(t, "radius", where)
+            kw["turns"] = _required(t, "turns", where)
+            kw["phase"] = _numbers(t.get("phase", 0.0), f"{where}.phase")
+        else:
+            for key in ("radius", "turns", "phase"):
+                if key in t:
+                    raise InputError(f"{where}.{key} is only for routing = \"helix\"")
+        if "length" in t:
+            kw["length"] = _numbers(t["length"], f"{where}.length")
+        tendons.append(Tendon(**kw))
+
+    loads = _table(data, "loads", LOAD_KEYS)
+    for key in ("gravity", "tip_force", "tip_moment"):
+        if key in loads:
+            robot_kw[key] = _numbers(loads[key], f"[loads].{key}")
+    points = []
+    for j, pf in enumerate(loads.get("point_forces", [])):
+        where = f"[[loads.point_forces]] #{j + 1}"
+        if not isinstance(pf, dict):
+            raise InputError(f"{where} must be a table, got {pf!r}")
+        _no_unknown(pf, POINT_KEYS, where)
+        points.append(PointForce(s=_required(pf, "s", where), force=_required(pf, "force", where)))
+
+    dyn = _table(data, "dynamics", DYNAMICS_KEYS)
+    for key in ("damping_shear", "damping_bending", "drag"):
+        if key in dyn:
+            robot_kw[key] = _numbers(dyn[key], f"[dynamics].{key}")
+    robot = Robot(tendons=tendons, point_forces=points, **robot_kw)
+
+    act = _table(data, "actuation", ACTUATION_KEYS, required=True)
+    tensions = check_tensions(robot, _required(act, "tensions", "[actuation]"), "[actuation].tensions")
+    if robot.batch_size > 1 and tensions.shape[0] != robot.batch_size:
+        raise InputError(f"[actuation].tensions: {tensions.shape[0]} rows for {robot.batch_size} rods")
+
+    solver = _table(data, "solver", SOLVER_KEYS)
+    options = StaticOptions(**solver)
+
+    dynamics = None
+    if dyn:
+        steps = _integer(_required(dyn, "steps", "[dynamics]"), "[dynamics].steps")
+        if steps < 1:
+            raise InputError(f"[dynamics].steps must be >= 1, got {steps}")
+        dt = float(_required(dyn, "dt", "[dynamics]"))
+        alpha = float(_numbers(dyn.get("alpha", 0.0), "[dynamics].alpha"))
+        shapes_every = _integer(dyn.get("shapes_every", 0), "[dynamics].shapes_every")
+        schedule = np.repeat(tensions[:, None, :], steps, axis=1)
+        plan = act.get("steps", [])
+        if not isinstance(plan, list):
+            raise InputError("[[actuation.steps]] must be an array of tables")
+        last = 0
+        for j, entry in enumerate(plan):
+            where = f"[[actuation.steps]] #{j + 1}"
+            if not isinstance(entry, dict):
+                raise InputError(f"{where} must be a table, got {entry!r}")
+            _no_unknown(entry, STEP_KEYS, where)
+            start = _integer(_required(entry, "start", where), f"{where}.start")
+            if not (1 <= start <= steps) or start <= last:
+                raise InputError(f"{where}.start must increase and lie in [1, {steps}], got {start}")
+            last = start
+            tau = check_tensions(robot, _required(entry, "tensions", where), f"{where}.tensions")
+            if tau.shape[0] not in (1, tensions.shape[0]):
+                raise InputError(f"{where}.tensions: {tau.shape[0]} rows for {tensions.shape[0]} rods")
+            schedule[:, start - 1:, :] = tau[:, None, :]
+        dynamics = DynamicsSpec(dt=dt, alpha=alpha, steps=steps, schedule=schedule, shapes_every=shapes_every)
+    elif act.get("steps"):
+        raise InputError("[[actuation.steps]] needs a [dynamics] table")
+    return Scene(robot=robot, tensions=tensions, options=options, dynamics=dynamics, source=data)

@@ -1,0 +1,128 @@
+"""The scene loader and the CLI: outputs, agreement with the API, and clear errors."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import tdcr_warp as tw
+from tdcr_warp.cli import main
+from tdcr_warp.scene import load_scene
+
+ROOT = Path(__file__).resolve().parents[1]
+EXAMPLES = ROOT / "examples"
+
+BASE = """
+[robot]
+length = 0.5
+youngs_modulus = 190e9
+poisson_ratio = 0.3
+radius = 0.001
+density = 7800
+[[tendons]]
+offset = [0.01, 0.0]
+[[tendons]]
+offset = [0.0, 0.01]
+[loads]
+gravity = [0.0, 0.0, -9.81]
+[actuation]
+tensions = [[2.0, 0.5]]
+[solver]
+nodes = 20
+"""
+
+
+def write(tmp_path, text, name="scene.toml"):
+    p = tmp_path / name
+    p.write_text(text)
+    return p
+
+
+def test_static_example_outputs_agree_with_api(tmp_path, capsys):
+    out = tmp_path / "out"
+    assert main(["static", str(EXAMPLES / "seed_robot.toml"), "--out", str(out)]) == 0
+    res = json.loads((out / "results.json").read_text())
+    assert res["batch_size"] == 1 and res["converged"] == [True]
+    assert res["rods"][0]["status"] == "converged"
+    assert (out / "shapes.png").stat().st_size > 1000
+    shapes = np.load(out / "shapes.npz")
+    assert shapes["positions"].shape == (1, 51, 3)
+    scene = load_scene(EXAMPLES / "seed_robot.toml")
+    sol = tw.solve_static(scene.robot, scene.tensions, options=scene.options)
+    assert np.abs(np.array(res["tip_position"]) - sol.tip_position).max() < 1e-15
+    assert "rod 0: tip" in capsys.readouterr().out
+
+
+def test_per_rod_lists_match_rods_alone(tmp_path):
+    text = BASE.replace("youngs_modulus = 190e9", "youngs_modulus = [190e9, 100e9]").replace(
+        "tensions = [[2.0, 0.5]]", "tensions = [[2.0, 0.5], [1.0, 1.0]]")
+    scene = load_scene(write(tmp_path, text))
+    batch = tw.solve_static(scene.robot, scene.tensions, options=scene.options)
+    for b, (E, tau) in enumerate([(190e9, [2.0, 0.5]), (100e9, [1.0, 1.0])]):
+        one = load_scene(write(tmp_path, BASE.replace("190e9", repr(E)).replace("[[2.0, 0.5]]", repr([tau])),
+                               f"one{b}.toml"))
+        alone = tw.solve_static(one.robot, one.tensions, options=one.options)
+        assert np.abs(alone.tip_position[0] - batch.tip_position[b]).max() < 1e-12
+
+
+def test_two_section_helix_example_solves(tmp_path):
+    assert main(["static", str(EXAMPLES / "helix_two_sections.toml"), "--out", str(tmp_path)]) == 0
+    res = json.loads((tmp_path / "results.json").read_text())
+    assert res["batch_size"] == 3 and all(res["converged"])
+
+
+def test_simulate_seed_dynamics(tmp_path):
+    assert main(["simulate", str(EXAMPLES / "seed_dynamics.toml"), "--out", str(tmp_path), "--quiet",
+                 "--nodes", "20"]) == 0
+    res = json.loads((tmp_path / "results.json").read_text())
+    traj = np.load(tmp_path / "trajectory.npz")
+    assert traj["tip_position"].shape == (101, 1, 3)
+    # no tension for steps 1-4: the tip has not moved; from step 5 on, 3 N on tendon 1
+    assert np.abs(traj["tip_position"][4, 0] - traj["tip_position"][0, 0]).max() < 1e-12
+    assert traj["tensions"][4, 0, 0] == 3.0 and traj["tensions"][3, 0, 0] == 0.0
+    assert res["completed"] == [True] and res["failed_step"] == [None]
+    for name in ("tip_position.png", "tip_rates.png"):
+        assert (tmp_path / name).stat().st_size > 1000
+
+
+def test_nonconverged_rod_exits_1_with_reason(tmp_path):
+    scene = write(tmp_path, BASE + "max_iter = 1\n")
+    assert main(["static", str(scene), "--out", str(tmp_path / "o")]) == 1
+    res = json.loads((tmp_path / "o" / "results.json").read_text())
+    assert res["converged"] == [False]
+    assert res["rods"][0]["status"] == "iteration cap reached"
+
+
+@pytest.mark.parametrize("edit,message", [
+    (("length = 0.5\n", ""), "missing key 'length' in [robot]"),
+    (("length = 0.5", "length = -1"), "length must be positive, got -1.0"),
+    (("poisson_ratio = 0.3", "poisson_ratio = 0.7"), "poisson_ratio must be in (-1, 0.5), got 0.7"),
+    (("radius = 0.001", 'radius = "thin"'), "[robot].radius: expected a number or a list of numbers, got 'thin'"),
+    (("[[2.0, 0.5]]", "[[2.0, -0.5]]"), "[actuation].tensions[0][1] must be a finite number >= 0"),
+    (("[[2.0, 0.5]]", "[[2.0, 0.5, 1.0]]"), "expected shape (B, 2) for 2 tendons"),
+    (("density = 7800", "density = 7800\nlenght = 0.5"), "unknown key 'lenght' in [robot]"),
+    (("nodes = 20", "nodes = 0"), "solver nodes must be a positive integer, got 0"),
+    (("[loads]", "[loads"), "invalid TOML"),
+])
+def test_bad_scene_exits_2_naming_field_and_value(tmp_path, capsys, edit, message):
+    old, new = edit
+    assert old in BASE
+    scene = write(tmp_path, BASE.replace(old, new, 1))
+    assert main(["static", str(scene), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert message in err, err
+    assert "Traceback" not in err
+    assert not (tmp_path / "o" / "results.json").exists()
+
+
+def test_missing_file_and_subprocess_exit_status(tmp_path):
+    assert main(["static", str(tmp_path / "nope.toml")]) == 2
+    bad = write(tmp_path, BASE.replace("radius = 0.001", "radius = 0.0"))
+    proc = subprocess.run([sys.executable, "-m", "tdcr_warp", "static", str(bad), "--out", str(tmp_path / "o")],
+                          capture_output=True, text=True)
+    assert proc.returncode == 2
+    assert "radius must be positive, got 0.0" in proc.stderr
+    assert "Traceback" not in proc.stderr
