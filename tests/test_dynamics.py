@@ -178,3 +178,26 @@ def test_bad_dynamic_input():
     sim = tw.Simulator(rob, [[0.0] * 4], dt=0.01)
     with pytest.raises(tw.InputError, match=r"schedule: expected shape"):
         sim.simulate(np.zeros((3, 2)), 3)
+
+
+def test_matches_independent_python_implementation():
+    """Same scheme (Euler along s, N = 20), other code: tests/python_dynamics.py."""
+    from python_dynamics import PythonRod
+
+    offsets = [(0.01, 0.0), (0.0, 0.01), (-0.01, 0.0), (0.0, -0.01)]
+    d = dict(length=L, youngs_modulus=E, poisson_ratio=NU, radius=R, density=17189.0,
+             gravity=(0.0, 0.0, -9.81), offsets=offsets, damping_shear=(1e-4, 1e-4, 1e-4),
+             damping_bending=(0.008, 0.008, 0.008), drag=(0.01, 0.01, 0.01))
+    ref = PythonRod(d, [0.0] * 4, dt=0.005, alpha=-0.2, nodes=20)
+    rob = tw.Robot(length=L, youngs_modulus=E, poisson_ratio=NU, radius=R, density=17189.0,
+                   gravity=(0.0, 0.0, -9.81), tendons=[tw.Tendon(offset=o) for o in offsets],
+                   damping_shear=(1e-4, 1e-4, 1e-4), damping_bending=(0.008, 0.008, 0.008),
+                   drag=(0.01, 0.01, 0.01))
+    sim = tw.Simulator(rob, [[0.0] * 4], dt=0.005, alpha=-0.2, nodes=20, integrator="euler", tol=1e-12)
+    for i in range(25):
+        tau = [3.0, 0.5, 0.0, 0.0] if i >= 4 else [0.0] * 4
+        tip, vel = ref.step(tau)
+        r = sim.step([tau])
+        assert r.converged.all()
+        assert np.abs(r.tip_position[0] - tip).max() < 1e-9, f"step {i}: {r.tip_position[0]} vs {tip}"
+        assert np.abs(r.tip_velocity[0] - vel).max() < 1e-7, f"step {i}: {r.tip_velocity[0]} vs {vel}"
