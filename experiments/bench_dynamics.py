@@ -13,10 +13,6 @@ of a single rod (simulated seconds per wall second).
 from __future__ import annotations
 
 import argparse
-import json
-import os
-import platform
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -24,9 +20,10 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "tests"))
+sys.path[:0] = [str(ROOT / "tests"), str(ROOT / "experiments")]
 
 import tdcr_warp as tw  # noqa: E402
+from _common import metadata, write_report  # noqa: E402
 
 OFFSETS = [(0.01, 0.0), (0.0, 0.01), (-0.01, 0.0), (0.0, -0.01)]
 ROD = dict(length=0.5, youngs_modulus=190e9, poisson_ratio=0.3, radius=1e-3, density=17189.0,
@@ -63,10 +60,7 @@ def main(argv=None) -> int:
     repeats = 1 if args.smoke else args.repeats
     nodes = 10 if args.smoke else 50
     rng = np.random.default_rng(0)
-    meta = {"warp": __import__("warp").__version__, "python": platform.python_version(), "device": args.device,
-            "cpus": os.cpu_count(), "dtype": "float64", "nodes": nodes, "dt": DT, "alpha": ALPHA,
-            "git": subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True,
-                                  text=True).stdout.strip()}
+    meta = metadata(args.device, dtype="float64", nodes=nodes, dt=DT, alpha=ALPHA)
 
     py_steps = 6 if args.smoke else 30
     sched1 = schedule(1, py_steps, rng)
@@ -100,12 +94,7 @@ def main(argv=None) -> int:
     rt = rows[0]["real_time_factor"]
     print(f"single rod, N = {nodes}: real-time factor {rt:.2f} (simulated s per wall s)")
     report = {"meta": meta, "python_seconds_per_rod_step": py_per_step, "rows": rows}
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_suffix(".tmp")
-    tmp.write_text(json.dumps(report, indent=2))
-    os.replace(tmp, out)
-    print(f"wrote {out}")
+    write_report(args.out, report)
     return 0
 
 

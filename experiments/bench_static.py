@@ -12,9 +12,7 @@ fsolve, as a Python user would write it) timed on a sample of the same rods.
 from __future__ import annotations
 
 import argparse
-import json
 import os
-import platform
 import subprocess
 import sys
 import tempfile
@@ -24,9 +22,10 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "tests"))
+sys.path[:0] = [str(ROOT / "tests"), str(ROOT / "experiments")]
 
 import tdcr_warp as tw  # noqa: E402
+from _common import metadata, write_report  # noqa: E402
 
 SEED_ROBOT = dict(length=0.5, youngs_modulus=190e9, poisson_ratio=0.3, radius=1e-3, density=17189.0,
                   gravity=(0.0, 0.0, -9.81))
@@ -86,10 +85,7 @@ def main(argv=None) -> int:
     rng = np.random.default_rng(0)
     rob = seed_robot()
     tau_all = rng.uniform(0.0, 3.0, (max(sizes), 4))
-    meta = {"warp": __import__("warp").__version__, "python": platform.python_version(),
-            "device": args.device, "cpus": os.cpu_count(), "dtype": "float64",
-            "git": subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True,
-                                  text=True).stdout.strip()}
+    meta = metadata(args.device, dtype="float64")
 
     with tempfile.TemporaryDirectory() as cache:
         cold = startup_time(cache, args.device)
@@ -145,12 +141,7 @@ def main(argv=None) -> int:
     report = {"meta": meta, "startup_cold_s": cold, "startup_warm_s": warm,
               "scipy_seconds_per_rod": scipy_per_rod, "scipy_tip_error_m": scipy_err, "rows": rows,
               "jacobian": jac_rows}
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_suffix(".tmp")
-    tmp.write_text(json.dumps(report, indent=2))
-    os.replace(tmp, out)
-    print(f"wrote {out}")
+    write_report(args.out, report)
     return 0
 
 

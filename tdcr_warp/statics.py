@@ -23,8 +23,6 @@ from .shooting import (PRECISIONS, ShootingBatch, check_tensions, host_tables, p
 
 __all__ = ["StaticOptions", "StaticSolution", "solve_static"]
 
-PRECISIONS = {"float64": (wp.float64, np.float64), "float32": (wp.float32, np.float32)}
-
 
 @dataclass(frozen=True)
 class StaticOptions:

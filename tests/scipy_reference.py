@@ -59,7 +59,7 @@ class Rod:
 
     def rhs(self, s, y, present):
         self.nfev += 1
-        p, R, n, m = y[:3], y[3:12].reshape(3, 3), y[12:15], y[15:18]
+        R, n, m = y[3:12].reshape(3, 3), y[12:15], y[15:18]
         v, u = self.strains(R, n, m)
         dp = R @ v
         dR = R @ hat(u)
