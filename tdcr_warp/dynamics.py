@@ -113,6 +113,7 @@ class Simulator:
         host = host_tables(robot, self.opts.nodes)
         if host["grid"].shape[1] != static.s.shape[1]:
             raise InputError("initial: its node count differs from the simulation's")
+        self.grid = np.broadcast_to(host["grid"], (self.B, host["grid"].shape[1]))
         dyn = robot.pack_dynamics()
         self.chunks = split(self.B, self.dev, self.opts.threads)
         self.batches = [ShootingBatch(host={k: rows(v, lo, hi) for k, v in host.items()}, tau=tau[lo:hi],
@@ -190,6 +191,15 @@ class Simulator:
         resid = np.where(ok, resid, np.inf)
         return StepResult(self.tip_position.copy(), self.tip_velocity.copy(), self.tip_acceleration.copy(),
                           ok, iters, resid, status)
+
+    def tip_state(self) -> dict[str, np.ndarray]:
+        """State at the last two nodes of the last evaluation: rotations (B, 2, 3, 3), n, m
+        (B, 2, 3) world frame, q (B, 2, 3) body frame, and the last interval h (B,) [m]."""
+        f64 = np.float64
+        cat = {name: np.concatenate([getattr(bt.out, name).numpy()[:, -2:].astype(f64) for bt in self.batches])
+               for name in ("R", "n", "m", "q")}
+        cat["h"] = self.grid[:, -1] - self.grid[:, -2]
+        return cat
 
     def shapes(self) -> np.ndarray:
         """Current positions along s, (B, N+1, 3) [m] (frozen rods: their last trial)."""

@@ -67,3 +67,46 @@ def plot_tip_history(time: np.ndarray, tip: np.ndarray, vel: np.ndarray, acc: np
             ax.grid(True, alpha=0.3)
     fig.tight_layout()
     _save(fig, out_dir / "tip_rates.png")
+
+
+def plot_control(run, out_dir: Path) -> None:
+    """The report's control figures: tip displacement, tension history with its mean, error
+    norm, and the phase portraits x vs x_t and e vs e_t (x components; at most
+    ``MAX_RODS_DRAWN`` rods)."""
+    nb = min(run.tip_position.shape[1], MAX_RODS_DRAWN)
+    t = run.time
+    fig, axes = plt.subplots(1, 3, figsize=(13, 4))
+    for c, ax in enumerate(axes):
+        ax.plot(t, run.tip_position[:, :nb, c] * 1e3, lw=1)
+        ax.plot(t, np.broadcast_to(run.target[:nb, c] * 1e3, (len(t), nb)), "k--", lw=0.8)
+        ax.set_xlabel("t [s]")
+        ax.set_ylabel(f"tip {'xyz'[c]} [mm]")
+        ax.grid(True, alpha=0.3)
+    fig.suptitle("tip displacement (dashed: target)")
+    fig.tight_layout()
+    _save(fig, out_dir / "control_tip.png")
+    fig, ax = plt.subplots(figsize=(7, 4))
+    K = run.tensions.shape[2]
+    for k in range(K):
+        line, = ax.plot(t[1:], run.tensions[:, 0, k], lw=1, label=f"tendon {k + 1}")
+        ax.axhline(run.tensions[:, 0, k].mean(), color=line.get_color(), ls="--", lw=0.8)
+    ax.set_xlabel("t [s]")
+    ax.set_ylabel("tension [N] (rod 0; dashed: mean)")
+    ax.legend()
+    ax.grid(True, alpha=0.3)
+    fig.tight_layout()
+    _save(fig, out_dir / "control_tension.png")
+    fig, axes = plt.subplots(1, 3, figsize=(13, 4))
+    axes[0].semilogy(t, np.linalg.norm(run.error[:, :nb], axis=2) + 1e-12, lw=1)
+    axes[0].set_xlabel("t [s]")
+    axes[0].set_ylabel("|e| [m]")
+    axes[1].plot(run.tip_position[:, :nb, 0] * 1e3, run.tip_velocity[:, :nb, 0], lw=1)
+    axes[1].set_xlabel("x [mm]")
+    axes[1].set_ylabel("x_t [m/s]")
+    axes[2].plot(run.error[:, :nb, 0] * 1e3, -run.tip_velocity[:, :nb, 0], lw=1)
+    axes[2].set_xlabel("e_x [mm]")
+    axes[2].set_ylabel("e_x,t [m/s]")
+    for ax in axes:
+        ax.grid(True, alpha=0.3)
+    fig.tight_layout()
+    _save(fig, out_dir / "control_error_phase.png")

@@ -7,6 +7,8 @@ Tables and keys (SI units; see README "Scene format"):
   [actuation]  tensions (B rows of K), [[actuation.steps]] (start, tensions) for dynamics
   [solver]     nodes, integrator, model, precision, tol, max_iter, max_step, jacobian, threads
   [dynamics]   dt, alpha, steps, damping_shear, damping_bending, drag, shapes_every
+  [control]    target (or target_tensions: the static tip there), method, input_model, gain_c,
+               gain_k, epsilon, phi, tension_max, model_every (see tdcr_warp.control)
 A robot scalar may be a list of B numbers and a vector a list of B vectors (per-rod values).
 Every error is an :class:`InputError` naming the table, the key and the value.
 """
@@ -32,8 +34,10 @@ POINT_KEYS = {"s", "force"}
 ACTUATION_KEYS = {"tensions", "steps"}
 STEP_KEYS = {"start", "tensions"}
 DYNAMICS_KEYS = {"dt", "alpha", "steps", "damping_shear", "damping_bending", "drag", "shapes_every"}
+CONTROL_KEYS = {"target", "target_tensions", "method", "input_model", "gain_c", "gain_k", "epsilon", "phi",
+                "tension_max", "model_every"}
 SOLVER_KEYS = {f.name for f in fields(StaticOptions)}
-TABLES = {"robot", "tendons", "loads", "actuation", "solver", "dynamics"}
+TABLES = {"robot", "tendons", "loads", "actuation", "solver", "dynamics", "control"}
 
 
 @dataclass(frozen=True)
@@ -55,6 +59,7 @@ class Scene:
     options: StaticOptions
     dynamics: DynamicsSpec | None
     source: dict
+    control: dict | None = None
 
 
 def load_scene(path) -> Scene:
@@ -203,4 +208,15 @@ def scene_from_dict(data: dict) -> Scene:
         dynamics = DynamicsSpec(dt=dt, alpha=alpha, steps=steps, schedule=schedule, shapes_every=shapes_every)
     elif act.get("steps"):
         raise InputError("[[actuation.steps]] needs a [dynamics] table")
-    return Scene(robot=robot, tensions=tensions, options=options, dynamics=dynamics, source=data)
+    control = _table(data, "control", CONTROL_KEYS) or None
+    if control is not None:
+        if dynamics is None:
+            raise InputError("[control] needs a [dynamics] table (dt, steps, ...)")
+        if ("target" in control) == ("target_tensions" in control):
+            raise InputError("[control] needs exactly one of 'target' (m) or 'target_tensions' (N)")
+        for key in ("target", "target_tensions", "gain_c", "gain_k", "epsilon", "phi", "tension_max"):
+            if key in control:
+                _numbers(control[key], f"[control].{key}")
+        if "model_every" in control:
+            _integer(control["model_every"], "[control].model_every")
+    return Scene(robot=robot, tensions=tensions, options=options, dynamics=dynamics, source=data, control=control)

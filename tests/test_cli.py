@@ -126,3 +126,24 @@ def test_missing_file_and_subprocess_exit_status(tmp_path):
     assert proc.returncode == 2
     assert "radius must be positive, got 0.0" in proc.stderr
     assert "Traceback" not in proc.stderr
+
+
+def test_control_examples(tmp_path):
+    for name in ("our_control", "seed_control"):
+        out = tmp_path / name
+        assert main(["control", str(EXAMPLES / f"{name}.toml"), "--out", str(out), "--quiet", "--steps", "30",
+                     "--nodes", "20"]) == 0
+        res = json.loads((out / "metrics.json").read_text())
+        for key in ("final_error", "rms_error", "settling_time", "overshoot", "chatter", "reversal_fraction",
+                    "saturation_fraction", "peak_tension", "mean_tension"):
+            assert len(res["metrics"][key]) == 1, key
+        run = np.load(out / "control.npz")
+        assert run["tensions"].shape == (30, 1, 4)
+        for png in ("control_tip.png", "control_tension.png", "control_error_phase.png"):
+            assert (out / png).stat().st_size > 1000
+
+
+def test_control_table_errors(tmp_path, capsys):
+    text = (EXAMPLES / "our_control.toml").read_text().replace("target_tensions", "target_tension")
+    assert main(["control", str(write(tmp_path, text)), "--out", str(tmp_path / "o")]) == 2
+    assert "unknown key 'target_tension' in [control]" in capsys.readouterr().err
