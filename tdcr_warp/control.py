@@ -85,11 +85,14 @@ class TipController:
 
     target (3,) or (B, 3) [m]; gain_c, gain_k: diagonals (3,) or (B, 3) [1/s]; epsilon [m/s^2]
     and phi [m/s] (boundary layer): float or (B,); tension_max [N]: float, (K,) or (B, K).
-    method "smc" | "boundary_layer"; input_model "jacobian" | "alpha".
+    method "smc" | "boundary_layer"; input_model "jacobian" | "alpha". model_robot: the robot
+    the controller believes in (its statics, frequency and damping), default the simulated one;
+    give the nominal robot to test robustness to plant uncertainty.
     """
 
     def __init__(self, sim: Simulator, target, *, method: str = "boundary_layer", input_model: str = "jacobian",
-                 gain_c=20.0, gain_k=20.0, epsilon=0.005, phi=1e-3, tension_max=8.0, model_every: int = 5):
+                 gain_c=20.0, gain_k=20.0, epsilon=0.005, phi=1e-3, tension_max=8.0, model_every: int = 5,
+                 model_robot: Robot | None = None):
         if method not in METHODS:
             raise InputError(f"control method must be one of {METHODS}, got {method!r}")
         if input_model not in INPUT_MODELS:
@@ -117,7 +120,9 @@ class TipController:
         self._p0 = None
         self._tau_lin = None
         self.steps = 0
-        robot = sim.robot
+        robot = self.model_robot = model_robot or sim.robot
+        if robot.n_tendons != K:
+            raise InputError(f"model_robot has {robot.n_tendons} tendons, the plant {K}")
         sec = robot.section()
         EI = np.broadcast_to(sec["kbt"][:, 0], (B,))
         rho_a = np.broadcast_to(robot.density * sec["area"], (B,))
@@ -130,7 +135,7 @@ class TipController:
 
     def _linearise(self, tau: np.ndarray) -> None:
         """p_s(tau) and J = d p_s / d tau by forward differences of the batched statics."""
-        robot, h = self.sim.robot, 1e-2
+        robot, h = self.model_robot, 1e-2
         base = solve_static(robot, tau, options=self.static_opts, device=self.sim.dev, initial=self._static)
         J = np.zeros((len(tau), 3, tau.shape[1]))
         for k in range(tau.shape[1]):

@@ -260,10 +260,11 @@ class Simulator:
 
 
 class _Progress:
-    """A one-line progress bar on stderr: steps, rod-steps/s, ETA, failed rods."""
+    """A one-line progress bar on stderr: done/total units, rod-units/s, ETA, failed rods."""
 
-    def __init__(self, total: int, rods: int):
+    def __init__(self, total: int, rods: int, unit: str = "steps", rate_unit: str = "rod-steps/s"):
         self.total, self.rods, self.t0 = total, rods, time.perf_counter()
+        self.unit, self.rate_unit = unit, rate_unit
         self.shown = -1.0
 
     def update(self, done: int, failed: int) -> None:
@@ -275,8 +276,8 @@ class _Progress:
         rate = done * self.rods / el if el > 0 else 0.0
         eta = el / done * (self.total - done) if done else 0.0
         filled = int(30 * done / self.total)
-        sys.stderr.write(f"\r[{'#' * filled}{'.' * (30 - filled)}] {done}/{self.total} steps "
-                         f"{rate:,.0f} rod-steps/s ETA {eta:5.1f} s failed {failed}")
+        sys.stderr.write(f"\r[{'#' * filled}{'.' * (30 - filled)}] {done}/{self.total} {self.unit} "
+                         f"{rate:,.0f} {self.rate_unit} ETA {eta:5.1f} s failed {failed}")
         sys.stderr.flush()
 
     def close(self) -> None:
