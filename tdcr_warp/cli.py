@@ -196,12 +196,89 @@ def cmd_control(args) -> int:
     return 0
 
 
+def _failure_counts(status: np.ndarray, ok: np.ndarray) -> dict[str, int]:
+    from .kernels import layout
+    counts: dict[str, int] = {}
+    for st in status[~ok]:
+        names = [v for k, v in layout.STATUS_NAMES.items() if int(st) & k] or ["not converged"]
+        key = ", ".join(names)
+        counts[key] = counts.get(key, 0) + 1
+    return counts
+
+
+def cmd_sweep(args) -> int:
+    """montecarlo, workspace and gain-grid: a [sweep] over the scene, run in chunks."""
+    from .jobs import (control_job, static_job, summarize_gain_grid, summarize_montecarlo,
+                       summarize_workspace)
+    from .scene import load_scene
+    from .statics import solve_static
+    from .sweep import SweepSpec, peak_memory_mb, run_sweep
+
+    base = _apply_overrides(load_scene(args.scene), args)
+    data = dict(base.source)
+    if any(getattr(args, k) is not None for k in ("nodes", "integrator", "model", "precision")):
+        data["solver"] = {k: v for k, v in vars(base.options).items() if v is not None}
+    job_name = args.command
+    dev = args.device
+    if job_name == "montecarlo":
+        def job(scene):
+            res = static_job(scene, dev)
+            if scene.control is not None:
+                ctl = control_job(scene, nominal=base, device=dev)
+                res["control_ok"] = ctl.pop("ok")
+                res.update(ctl)
+            return res
+    elif job_name == "workspace":
+        def job(scene):
+            return static_job(scene, dev)
+    else:
+        if base.control is None or base.dynamics is None:
+            raise InputError("gain-grid needs [dynamics] and [control] tables")
+
+        def job(scene):
+            return control_job(scene, device=dev)
+    out = Path(args.out or Path("out") / f"{Path(args.scene).stem}_{job_name}")
+    res = run_sweep(data, job, out, chunk=args.chunk, resume=args.resume, progress=not args.quiet,
+                    max_chunks=args.max_chunks, job_name=job_name)
+    if res is None:
+        print(f"stopped after {args.max_chunks} new chunk(s); rerun with --resume to finish ({out})")
+        return 1
+    wall = res.pop("_wall_s")
+    ok = res["ok"].astype(bool)
+    rods = len(ok)
+    if job_name == "montecarlo":
+        nominal = solve_static(base.robot, base.tensions, options=base.options, device=dev).tip_position[0]
+        summary = summarize_montecarlo(res, nominal, out)
+    elif job_name == "workspace":
+        summary = summarize_workspace(res, base.robot, out)
+    else:
+        fields = [name for name, _ in SweepSpec(data).grid]
+        summary = summarize_gain_grid(res, fields, out)
+    if "status" in res:
+        summary["failure_reasons"] = _failure_counts(res["status"], ok)
+    summary.update(scene=str(args.scene), wall_time_s=wall, rods_per_s=rods / wall if wall > 0 else None,
+                   chunk=args.chunk or SweepSpec(data).chunk, peak_memory_mb=peak_memory_mb(),
+                   settings=_settings(base, args, dev or "default"))
+    _write_json(out / "summary.json", summary)
+    print(f"{job_name}: {rods} rods in {wall:.1f} s ({rods / max(wall, 1e-9):,.0f} rods/s), "
+          f"{int((~ok).sum())} failed, peak memory {peak_memory_mb():.0f} MB")
+    if job_name == "gain-grid":
+        best = summary["best"]
+        print(f"best gains {best['gains']}: settling {best['settling_time']:.3f} s, final error "
+              f"{best['final_error'] * 1e3:.3f} mm, chatter {best['chatter']:.2e} N")
+    print(f"wrote {out}/summary.json, results.npz, chunks/, figures")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="tdcr-warp", description="Batched tendon-driven continuum robots on Warp.")
     sub = ap.add_subparsers(dest="command", required=True)
     for name, helptext in (("static", "solve the statics of a scene"),
                            ("simulate", "run the dynamics of a scene ([dynamics] table)"),
-                           ("control", "sliding-mode tip control ([dynamics] and [control] tables)")):
+                           ("control", "sliding-mode tip control ([dynamics] and [control] tables)"),
+                           ("montecarlo", "tip distribution (and control success) under [[uncertainty]]"),
+                           ("workspace", "tip cloud over a [sweep] of tensions"),
+                           ("gain-grid", "controller metrics over a [sweep.grid] of control gains")):
         p = sub.add_parser(name, help=helptext)
         p.add_argument("scene", help="scene file (TOML)")
         p.add_argument("--out", help="output directory (default: out/<scene name>)")
@@ -212,7 +289,12 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--precision", choices=["float64", "float32"], help="override [solver].precision")
         if name in ("simulate", "control"):
             p.add_argument("--steps", type=int, help="run only the first STEPS steps")
+        if name not in ("static",):
             p.add_argument("--quiet", action="store_true", help="no progress bar")
+        if name in ("montecarlo", "workspace", "gain-grid"):
+            p.add_argument("--chunk", type=int, help="rods per chunk (default [sweep].chunk)")
+            p.add_argument("--resume", action="store_true", help="continue an interrupted sweep in --out")
+            p.add_argument("--max-chunks", type=int, help="stop after computing this many chunks")
     return ap
 
 
@@ -225,7 +307,9 @@ def main(argv=None) -> int:
                 wp.get_device(args.device)
             except (RuntimeError, ValueError) as e:
                 raise InputError(f"--device {args.device!r}: {e}") from None
-        return {"static": cmd_static, "simulate": cmd_simulate, "control": cmd_control}[args.command](args)
+        cmds = {"static": cmd_static, "simulate": cmd_simulate, "control": cmd_control, "montecarlo": cmd_sweep,
+                "workspace": cmd_sweep, "gain-grid": cmd_sweep}
+        return cmds[args.command](args)
     except InputError as e:
         print(f"tdcr-warp: error: {e}", file=sys.stderr)
         return 2

@@ -110,3 +110,98 @@ def plot_control(run, out_dir: Path) -> None:
         ax.grid(True, alpha=0.3)
     fig.tight_layout()
     _save(fig, out_dir / "control_error_phase.png")
+
+
+def _ellipse(mean2: np.ndarray, cov2: np.ndarray, k: float) -> np.ndarray:
+    w, V = np.linalg.eigh(cov2)
+    t = np.linspace(0, 2 * np.pi, 100)
+    return mean2[:, None] + V @ (k * np.sqrt(np.maximum(w, 0))[:, None] * np.stack([np.cos(t), np.sin(t)]))
+
+
+def plot_montecarlo(tips: np.ndarray, nominal: np.ndarray, err: np.ndarray, out_dir: Path) -> None:
+    """Histogram of the tip deviation from the nominal tip, and tip scatter (x-y, x-z) with
+    1, 2, 3 sigma confidence ellipses."""
+    fig, axes = plt.subplots(1, 3, figsize=(14, 4.2))
+    axes[0].hist(err * 1e3, bins=60, color="C0")
+    axes[0].set_xlabel("|tip - nominal tip| [mm]")
+    axes[0].set_ylabel("rods")
+    for ax, (i, j) in zip(axes[1:], ((0, 1), (0, 2))):
+        sub = tips[:: max(1, len(tips) // 20000)]
+        ax.scatter(sub[:, i] * 1e3, sub[:, j] * 1e3, s=2, alpha=0.3)
+        if len(tips) > 2:
+            m2 = tips[:, [i, j]].mean(0)
+            c2 = np.cov(tips[:, [i, j]].T)
+            for k in (1, 2, 3):
+                e = _ellipse(m2, c2, k)
+                ax.plot(e[0] * 1e3, e[1] * 1e3, "k-", lw=0.8)
+        ax.plot(nominal[i] * 1e3, nominal[j] * 1e3, "r+", ms=12, label="nominal")
+        ax.set_xlabel(f"{'xyz'[i]} [mm]")
+        ax.set_ylabel(f"{'xyz'[j]} [mm]")
+        ax.legend()
+        ax.grid(True, alpha=0.3)
+    fig.tight_layout()
+    _save(fig, out_dir / "montecarlo.png")
+
+
+def plot_workspace(tips: np.ndarray, total_tension: np.ndarray, cc: np.ndarray, boundary: list, out_dir: Path) -> None:
+    """Tip cloud: 3D, top (x-y) and side (x-z) views coloured by total tension, the convex hull
+    per height slice, and the constant-curvature prediction (grey) beside it."""
+    sub = slice(None, None, max(1, len(tips) // 30000))
+    fig = plt.figure(figsize=(15, 4.8))
+    ax3 = fig.add_subplot(1, 3, 1, projection="3d")
+    sc = ax3.scatter(tips[sub, 0], tips[sub, 1], tips[sub, 2], c=total_tension[sub], s=1, cmap="viridis")
+    ax3.set_xlabel("x [m]")
+    ax3.set_ylabel("y [m]")
+    ax3.set_zlabel("z [m]")
+    for k, (i, j, name) in enumerate(((0, 1, "top (x-y)"), (0, 2, "side (x-z)"))):
+        ax = fig.add_subplot(1, 3, k + 2)
+        ax.scatter(cc[sub, i], cc[sub, j], s=1, c="0.75", label="constant curvature")
+        ax.scatter(tips[sub, i], tips[sub, j], s=1, c=total_tension[sub], cmap="viridis", label="Cosserat")
+        if i == 0 and j == 1:
+            for sl in boundary:
+                h = np.array(sl["hull_xy"] + sl["hull_xy"][:1])
+                ax.plot(h[:, 0], h[:, 1], "k-", lw=0.6)
+        ax.set_xlabel(f"{'xyz'[i]} [m]")
+        ax.set_ylabel(f"{'xyz'[j]} [m]")
+        ax.set_title(name)
+        ax.set_aspect("equal", adjustable="datalim")
+        ax.legend(markerscale=8, fontsize=8)
+        ax.grid(True, alpha=0.3)
+    fig.colorbar(sc, ax=fig.axes, label="total tension [N]", shrink=0.8)
+    _save(fig, out_dir / "workspace.png")
+
+
+def plot_gain_grid(res: dict, fields: list, front: np.ndarray, out_dir: Path) -> None:
+    """Heatmaps over the first two gain fields (best over the others) of settling time, final
+    error and chatter, and the Pareto front settling time vs chatter."""
+    a, b = res[f"sample:{fields[0]}"], res[f"sample:{fields[-1]}"]
+    ua, ub = np.unique(a), np.unique(b)
+    fig, axes = plt.subplots(1, 4, figsize=(18, 4.2))
+    for ax, key, label in zip(axes[:3], ("settling_time", "final_error", "chatter"),
+                              ("settling time [s]", "final error [m]", "chatter index [N]")):
+        grid = np.full((len(ub), len(ua)), np.nan)
+        val = np.where(np.isfinite(res[key]), res[key], np.nan)
+        for i, x in enumerate(ua):
+            for j, y in enumerate(ub):
+                sel = (a == x) & (b == y)
+                if sel.any() and np.isfinite(val[sel]).any():
+                    grid[j, i] = np.nanmin(val[sel])
+        im = ax.imshow(grid, origin="lower", aspect="auto", cmap="magma_r",
+                       extent=(0, len(ua), 0, len(ub)))
+        ax.set_xticks(np.arange(len(ua)) + 0.5, [f"{x:.3g}" for x in ua], rotation=90, fontsize=7)
+        ax.set_yticks(np.arange(len(ub)) + 0.5, [f"{y:.3g}" for y in ub], fontsize=7)
+        ax.set_xlabel(fields[0])
+        ax.set_ylabel(fields[-1])
+        ax.set_title(label)
+        fig.colorbar(im, ax=ax)
+    st = np.where(np.isfinite(res["settling_time"]), res["settling_time"], np.nan)
+    axes[3].scatter(st, res["chatter"], s=4, alpha=0.4)
+    if len(front):
+        axes[3].plot(st[front], res["chatter"][front], "r.-", label="Pareto front")
+        axes[3].legend()
+    axes[3].set_xlabel("settling time [s]")
+    axes[3].set_ylabel("chatter index [N]")
+    axes[3].set_yscale("symlog", linthresh=1e-6)
+    axes[3].grid(True, alpha=0.3)
+    fig.tight_layout()
+    _save(fig, out_dir / "gain_grid.png")

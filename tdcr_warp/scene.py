@@ -37,7 +37,7 @@ DYNAMICS_KEYS = {"dt", "alpha", "steps", "damping_shear", "damping_bending", "dr
 CONTROL_KEYS = {"target", "target_tensions", "method", "input_model", "gain_c", "gain_k", "epsilon", "phi",
                 "tension_max", "model_every"}
 SOLVER_KEYS = {f.name for f in fields(StaticOptions)}
-TABLES = {"robot", "tendons", "loads", "actuation", "solver", "dynamics", "control"}
+TABLES = {"robot", "tendons", "loads", "actuation", "solver", "dynamics", "control", "sweep", "uncertainty"}
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,243 @@
+"""Sweeps over scene fields, run in chunks that survive interruption.
+
+A ``[sweep]`` table turns fields of a single-rod scene into M sample rows:
+
+    [sweep]
+    chunk = 1024            # rods per chunk (memory bound)
+    seed = 0                # random draws (deterministic whatever the chunk size)
+    samples = 1000          # number of random samples when there is no grid
+    max_total_tension = 6.0 # optional: drop rows whose tensions sum above it [N]
+    [sweep.grid]            # cartesian product, first field slowest: [start, stop, count]
+    "actuation.tensions[0]" = [0.0, 8.0, 33]
+    [[uncertainty]]         # random per-rod perturbations: normal [mean, std], uniform [low, high],
+    field = "robot.youngs_modulus"   # lognormal [mu, sigma] of the log
+    distribution = "normal"
+    params = [190e9, 10e9]
+
+Field names: ``robot.<key>``, ``loads.<gravity|tip_force|tip_moment>[c]``,
+``tendons[i].<offset[c]|radius|turns|phase|length>``, ``actuation.tensions[k]`` (tendon k),
+``dynamics.<damping_shear|damping_bending|drag>[c]``, ``control.<gain_c[c]|gain_k[c]|target[c]|
+epsilon|phi|tension_max>``. Each chunk's results are written to ``chunks/chunk_NNNNN.npz`` as
+soon as it is done, so ``resume=True`` continues where an interrupted sweep stopped.
+"""
+
+from __future__ import annotations
+
+import copy
+import hashlib
+import itertools
+import json
+import os
+import re
+import resource
+import time
+from pathlib import Path
+
+import numpy as np
+
+from .robot import InputError
+from .scene import scene_from_dict
+
+__all__ = ["SweepSpec", "apply_rows", "make_samples", "run_sweep"]
+
+_TOKEN = re.compile(r"([A-Za-z_]+)(?:\[(\d+)\])?")
+DISTRIBUTIONS = ("normal", "uniform", "lognormal")
+
+
+def parse_field(name: str) -> list:
+    """'tendons[1].offset[0]' -> ['tendons', 1, 'offset', 0]."""
+    path = []
+    for part in name.split("."):
+        m = _TOKEN.fullmatch(part)
+        if not m:
+            raise InputError(f"sweep field {name!r}: cannot parse {part!r}")
+        path.append(m.group(1))
+        if m.group(2) is not None:
+            path.append(int(m.group(2)))
+    return path
+
+
+class SweepSpec:
+    """The parsed [sweep] table and [[uncertainty]] entries of a scene dict."""
+
+    def __init__(self, data: dict):
+        sw = data.get("sweep", {})
+        if not isinstance(sw, dict):
+            raise InputError("[sweep] must be a table")
+        allowed = {"chunk", "seed", "samples", "grid", "max_total_tension"}
+        for key in sw:
+            if key not in allowed:
+                raise InputError(f"unknown key {key!r} in [sweep] (known: {', '.join(sorted(allowed))})")
+        self.chunk = sw.get("chunk", 1024)
+        self.seed = sw.get("seed", 0)
+        self.samples = sw.get("samples")
+        self.max_total = sw.get("max_total_tension")
+        for name, v in (("chunk", self.chunk), ("seed", self.seed)):
+            if not isinstance(v, int) or isinstance(v, bool) or v < (1 if name == "chunk" else 0):
+                raise InputError(f"[sweep].{name} must be a {'positive' if name == 'chunk' else 'non-negative'} "
+                                 f"integer, got {v!r}")
+        self.grid = []
+        for name, spec in sw.get("grid", {}).items():
+            parse_field(name)
+            if (not isinstance(spec, list) or len(spec) != 3 or not isinstance(spec[2], int) or spec[2] < 1
+                    or not all(isinstance(x, (int, float)) for x in spec[:2])):
+                raise InputError(f"[sweep.grid].{name!r}: expected [start, stop, count], got {spec!r}")
+            self.grid.append((name, np.linspace(spec[0], spec[1], spec[2])))
+        self.uncertainty = []
+        for i, u in enumerate(data.get("uncertainty", [])):
+            where = f"[[uncertainty]] #{i + 1}"
+            if not isinstance(u, dict) or set(u) - {"field", "distribution", "params"}:
+                raise InputError(f"{where}: expected keys field, distribution, params, got {u!r}")
+            if u.get("distribution") not in DISTRIBUTIONS:
+                raise InputError(f"{where}.distribution must be one of {DISTRIBUTIONS}, got {u.get('distribution')!r}")
+            p = u.get("params")
+            if not (isinstance(p, list) and len(p) == 2 and all(isinstance(x, (int, float)) for x in p)) or p[1] < 0:
+                raise InputError(f"{where}.params: expected [a, b] with b >= 0, got {p!r}")
+            parse_field(u.get("field", ""))
+            self.uncertainty.append((u["field"], u["distribution"], (float(p[0]), float(p[1]))))
+        if not self.grid and not self.uncertainty:
+            raise InputError("a sweep needs [sweep.grid] or [[uncertainty]] entries")
+        if not self.grid and not (isinstance(self.samples, int) and self.samples >= 1):
+            raise InputError(f"[sweep].samples must be a positive integer without a grid, got {self.samples!r}")
+
+
+def make_samples(spec: SweepSpec) -> dict[str, np.ndarray]:
+    """All M sample rows, field -> (M,) values, from the grid and the seeded random draws."""
+    rows: dict[str, np.ndarray] = {}
+    if spec.grid:
+        mesh = list(itertools.product(*[v for _, v in spec.grid]))
+        for j, (name, _) in enumerate(spec.grid):
+            rows[name] = np.array([m[j] for m in mesh])
+    M = len(next(iter(rows.values()))) if rows else spec.samples
+    rng = np.random.default_rng(spec.seed)
+    for name, dist, (a, b) in spec.uncertainty:
+        if name in rows:
+            raise InputError(f"sweep field {name!r} is both on the grid and uncertain")
+        rows[name] = {"normal": rng.normal, "uniform": rng.uniform, "lognormal": rng.lognormal}[dist](a, b, M)
+    if spec.max_total is not None:
+        tension_fields = [n for n in rows if n.startswith("actuation.tensions")]
+        total = sum(rows[n] for n in tension_fields)
+        keep = total <= spec.max_total + 1e-12
+        rows = {n: v[keep] for n, v in rows.items()}
+    return rows
+
+
+def apply_rows(data: dict, rows: dict[str, np.ndarray]) -> dict:
+    """A copy of the single-rod scene dict with every swept field given per rod."""
+    out = copy.deepcopy(data)
+    for key in ("sweep", "uncertainty"):
+        out.pop(key, None)
+    b = len(next(iter(rows.values())))
+    tensions = out.get("actuation", {}).get("tensions")
+    if not (isinstance(tensions, list) and len(tensions) == 1):
+        raise InputError("a sweep needs a single-rod scene: [actuation].tensions with one row")
+    out["actuation"]["tensions"] = [copy.deepcopy(tensions[0]) for _ in range(b)]  # fixes the batch size
+    done: set[tuple] = {("actuation", "tensions")}
+    for name, values in rows.items():
+        path = parse_field(name)
+        if path[0] == "actuation" and path[1:2] == ["tensions"]:
+            if len(path) != 3:
+                raise InputError(f"sweep field {name!r}: use actuation.tensions[k] for tendon k")
+            leaf_path, comp = ("actuation", "tensions"), path[2]
+        elif isinstance(path[-1], int):
+            leaf_path, comp = tuple(path[:-1]), path[-1]
+        else:
+            leaf_path, comp = tuple(path), None
+        parent = out
+        for key in leaf_path[:-1]:
+            try:
+                parent = parent[key]
+            except (KeyError, IndexError, TypeError):
+                raise InputError(f"sweep field {name!r}: the scene has no {key!r} there") from None
+        leaf = leaf_path[-1]
+        if leaf not in parent and leaf_path not in done:
+            raise InputError(f"sweep field {name!r}: set a base value for it in the scene")
+        if leaf_path not in done:
+            base = parent[leaf]
+            if isinstance(base, list) and base and isinstance(base[0], list):
+                raise InputError(f"sweep field {name!r}: the base scene must be single-rod")
+            parent[leaf] = [copy.deepcopy(base) for _ in range(b)]
+            done.add(leaf_path)
+        cur = parent[leaf]
+        for r in range(b):
+            if comp is None:
+                cur[r] = float(values[r])
+            else:
+                if not isinstance(cur[r], list) or comp >= len(cur[r]):
+                    raise InputError(f"sweep field {name!r}: index {comp} out of range")
+                cur[r][comp] = float(values[r])
+    return out
+
+
+def _scene_hash(data: dict) -> str:
+    return hashlib.sha256(json.dumps(data, sort_keys=True, default=str).encode()).hexdigest()[:16]
+
+
+def _save_npz(path: Path, arrays: dict) -> None:
+    tmp = path.with_name(path.stem + ".tmp.npz")
+    np.savez(tmp, **arrays)
+    os.replace(tmp, path)
+
+
+def peak_memory_mb() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def run_sweep(data: dict, job, out_dir, *, chunk: int | None = None, resume: bool = False,
+              progress: bool = True, max_chunks: int | None = None, job_name: str = "sweep") -> dict | None:
+    """Run ``job(scene) -> dict of per-rod arrays`` over every sample row, chunk by chunk.
+
+    Returns the concatenated results (also in ``out_dir/results.npz``) plus ``samples``, or
+    None when ``max_chunks`` stopped it early (resume later). Chunk files are written
+    atomically; ``resume`` reuses those of an identical earlier sweep.
+    """
+    from .dynamics import _Progress
+
+    spec = SweepSpec(data)
+    rows = make_samples(spec)
+    M = len(next(iter(rows.values())))
+    if M == 0:
+        raise InputError("the sweep has no sample rows (check max_total_tension)")
+    size = chunk or spec.chunk
+    out = Path(out_dir)
+    (out / "chunks").mkdir(parents=True, exist_ok=True)
+    manifest = {"job": job_name, "rods": M, "chunk": size, "scene": _scene_hash(data), "fields": list(rows)}
+    man_path = out / "manifest.json"
+    if man_path.exists() and resume:
+        old = json.loads(man_path.read_text())
+        if old != manifest:
+            raise InputError(f"--resume: {out} holds a different sweep ({old.get('job')}, {old.get('rods')} rods, "
+                             f"chunk {old.get('chunk')}); use another --out or drop --resume")
+    else:
+        for f in (out / "chunks").glob("chunk_*.npz"):
+            f.unlink()
+        man_path.write_text(json.dumps(manifest))
+    n_chunks = (M + size - 1) // size
+    bar = _Progress(M, 1, unit="rods", rate_unit="rods/s") if progress else None
+    parts, done_rods, computed = [], 0, 0
+    t0 = time.perf_counter()
+    for c in range(n_chunks):
+        lo, hi = c * size, min(M, (c + 1) * size)
+        path = out / "chunks" / f"chunk_{c:05d}.npz"
+        if path.exists():
+            res = dict(np.load(path))
+        else:
+            if max_chunks is not None and computed >= max_chunks:
+                if bar:
+                    bar.close()
+                return None
+            scene = scene_from_dict(apply_rows(data, {k: v[lo:hi] for k, v in rows.items()}))
+            res = job(scene)
+            _save_npz(path, res)
+            computed += 1
+        parts.append(res)
+        done_rods = hi
+        if bar:
+            bar.update(done_rods, int(sum((~p["ok"]).sum() for p in parts)))
+    if bar:
+        bar.close()
+    results = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+    results.update({f"sample:{k}": v for k, v in rows.items()})
+    _save_npz(out / "results.npz", results)
+    results["_wall_s"] = time.perf_counter() - t0
+    return results

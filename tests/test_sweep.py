@@ -1,0 +1,197 @@
+"""Chunked sweeps and the three users' jobs at small size."""
+
+import json
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import tdcr_warp as tw
+from tdcr_warp.cli import main
+from tdcr_warp.jobs import constant_curvature_tip, convex_hull_2d, pareto_front, static_job
+from tdcr_warp.scene import scene_from_dict
+from tdcr_warp.sweep import run_sweep
+
+ROOT = Path(__file__).resolve().parents[1]
+
+BASE = """
+[robot]
+length = 0.5
+youngs_modulus = 190e9
+poisson_ratio = 0.3
+radius = 0.001
+density = 7800
+[[tendons]]
+offset = [0.01, 0.0]
+[[tendons]]
+offset = [0.0, 0.01]
+[loads]
+gravity = [0.0, 0.0, -9.81]
+[actuation]
+tensions = [[1.0, 0.5]]
+[solver]
+nodes = 16
+"""
+
+GRID = BASE + """
+[sweep]
+chunk = 7
+[sweep.grid]
+"actuation.tensions[0]" = [0.0, 3.0, 4]
+"robot.youngs_modulus" = [150e9, 200e9, 5]
+"""
+
+MC = BASE + """
+[sweep]
+chunk = 16
+seed = 3
+samples = 40
+[[uncertainty]]
+field = "robot.youngs_modulus"
+distribution = "normal"
+params = [190e9, 10e9]
+[[uncertainty]]
+field = "tendons[0].offset[0]"
+distribution = "uniform"
+params = [0.009, 0.011]
+"""
+
+
+def test_sweep_rows_equal_direct_solves(tmp_path):
+    data = tomllib.loads(GRID)
+    res = run_sweep(data, static_job, tmp_path, progress=False)
+    assert len(res["ok"]) == 20 and res["ok"].all()
+    tau0 = res["sample:actuation.tensions[0]"]
+    E = res["sample:robot.youngs_modulus"]
+    assert np.allclose(np.unique(tau0), [0, 1, 2, 3]) and np.allclose(np.unique(E), np.linspace(150e9, 200e9, 5))
+    for i in (0, 7, 19):
+        rob = tw.Robot(length=0.5, youngs_modulus=E[i], poisson_ratio=0.3, radius=1e-3, density=7800.0,
+                       tendons=[tw.Tendon(offset=(0.01, 0.0)), tw.Tendon(offset=(0.0, 0.01))],
+                       gravity=(0.0, 0.0, -9.81))
+        one = tw.solve_static(rob, [[tau0[i], 0.5]], nodes=16)
+        assert np.abs(one.tip_position[0] - res["tip_position"][i]).max() < 1e-12
+
+
+def test_chunk_size_does_not_change_results(tmp_path):
+    data = tomllib.loads(MC)
+    a = run_sweep(data, static_job, tmp_path / "a", chunk=5, progress=False)
+    b = run_sweep(data, static_job, tmp_path / "b", chunk=40, progress=False)
+    assert np.array_equal(a["tip_position"], b["tip_position"])
+    assert np.array_equal(a["sample:robot.youngs_modulus"], b["sample:robot.youngs_modulus"])
+
+
+def test_resume_after_interruption_gives_the_same_output(tmp_path):
+    scene = tmp_path / "mc.toml"
+    scene.write_text(MC)
+    full, part = tmp_path / "full", tmp_path / "part"
+    assert main(["montecarlo", str(scene), "--out", str(full), "--quiet"]) == 0
+    assert main(["montecarlo", str(scene), "--out", str(part), "--quiet", "--max-chunks", "1"]) == 1
+    assert len(list((part / "chunks").glob("chunk_*.npz"))) == 1 and not (part / "results.npz").exists()
+    assert main(["montecarlo", str(scene), "--out", str(part), "--quiet", "--resume"]) == 0
+    a, b = np.load(full / "results.npz"), np.load(part / "results.npz")
+    assert set(a.files) == set(b.files)
+    for k in a.files:
+        assert np.array_equal(a[k], b[k]), k
+    sa = json.loads((full / "summary.json").read_text())
+    sb = json.loads((part / "summary.json").read_text())
+    assert sa["tip_mean"] == sb["tip_mean"] and sa["tip_covariance"] == sb["tip_covariance"]
+
+
+def test_resume_refuses_a_different_sweep(tmp_path, capsys):
+    scene = tmp_path / "mc.toml"
+    scene.write_text(MC)
+    assert main(["montecarlo", str(scene), "--out", str(tmp_path / "o"), "--quiet", "--max-chunks", "1"]) == 1
+    scene.write_text(MC.replace("samples = 40", "samples = 41"))
+    assert main(["montecarlo", str(scene), "--out", str(tmp_path / "o"), "--quiet", "--resume"]) == 2
+    assert "holds a different sweep" in capsys.readouterr().err
+
+
+def test_montecarlo_with_zero_variance_equals_nominal(tmp_path):
+    scene = tmp_path / "mc.toml"
+    scene.write_text(MC.replace("params = [190e9, 10e9]", "params = [190e9, 0.0]").replace(
+        "params = [0.009, 0.011]", "params = [0.01, 0.01]"))
+    assert main(["montecarlo", str(scene), "--out", str(tmp_path / "o"), "--quiet"]) == 0
+    summary = json.loads((tmp_path / "o" / "summary.json").read_text())
+    base = scene_from_dict(tomllib.loads(BASE))
+    nominal = tw.solve_static(base.robot, base.tensions, options=base.options).tip_position[0]
+    assert np.abs(np.array(summary["tip_mean"]) - nominal).max() < 1e-12
+    assert summary["tip_error_percentiles_m"]["99"] < 1e-12
+    assert (tmp_path / "o" / "montecarlo.png").exists()
+
+
+def test_workspace_of_a_single_tendon_lies_in_its_plane(tmp_path):
+    text = BASE.replace("[[tendons]]\noffset = [0.0, 0.01]\n", "").replace("[[1.0, 0.5]]", "[[1.0]]").replace(
+        'gravity = [0.0, 0.0, -9.81]', 'gravity = [0.0, 0.0, 0.0]') + """
+[sweep]
+chunk = 8
+[sweep.grid]
+"actuation.tensions[0]" = [0.0, 10.0, 21]
+"""
+    scene = tmp_path / "ws.toml"
+    scene.write_text(text)
+    assert main(["workspace", str(scene), "--out", str(tmp_path / "o"), "--quiet"]) == 0
+    res = np.load(tmp_path / "o" / "results.npz")
+    assert res["ok"].all()
+    assert np.abs(res["tip_position"][:, 1]).max() < 1e-12, "tip left the tendon's x-z plane"
+    assert (res["tip_position"][1:, 0] > 0).all()
+    summary = json.loads((tmp_path / "o" / "summary.json").read_text())
+    assert summary["rods"] == 21 and summary["peak_memory_mb"] > 0
+
+
+def test_constant_curvature_matches_coupled_single_tendon_without_load():
+    rob = tw.Robot(length=0.5, tendons=[tw.Tendon(offset=(0.0, 0.01))])
+    tau = np.array([[2.0]])
+    cc = constant_curvature_tip(rob, tau)[0]
+    sol = tw.solve_static(rob, tau).tip_position[0]
+    # the coupled model bends a straight tendon into an arc; the rest is shear and extension
+    assert np.abs(cc - sol).max() < 1e-5, (cc, sol)
+
+
+def test_gain_grid_pipeline(tmp_path):
+    text = BASE.replace("tensions = [[1.0, 0.5]]", "tensions = [[0.0, 0.0]]") + """
+[dynamics]
+dt = 0.005
+alpha = -0.2
+steps = 100
+damping_bending = [0.008, 0.008, 0.008]
+[control]
+target_tensions = [[1.5, 0.5]]
+method = "boundary_layer"
+gain_c = [20.0, 20.0, 20.0]
+gain_k = [20.0, 20.0, 20.0]
+epsilon = 0.005
+phi = 0.001
+[sweep]
+chunk = 3
+[sweep.grid]
+"control.gain_c[0]" = [10.0, 40.0, 2]
+"control.gain_k[0]" = [10.0, 40.0, 2]
+"""
+    scene = tmp_path / "gg.toml"
+    scene.write_text(text)
+    assert main(["gain-grid", str(scene), "--out", str(tmp_path / "o"), "--quiet"]) == 0
+    summary = json.loads((tmp_path / "o" / "summary.json").read_text())
+    assert summary["rods"] == 4 and set(summary["best"]["gains"]) == {"control.gain_c[0]", "control.gain_k[0]"}
+    assert len(summary["pareto"]) >= 1
+    assert (tmp_path / "o" / "gain_grid.png").exists()
+
+
+def test_helpers():
+    pts = np.array([[0, 0], [1, 0], [1, 1], [0, 1], [0.5, 0.5]])
+    assert len(convex_hull_2d(pts)) == 4
+    front = pareto_front(np.array([1.0, 2.0, 3.0, 1.5]), np.array([3.0, 1.0, 0.5, 3.5]))
+    assert list(front) == [0, 1, 2]
+
+
+@pytest.mark.parametrize("edit,message", [
+    ('"robot.youngs_modulus" = [150e9, 200e9, 5]', "[sweep.grid].'robot.youngs_modulus'"),
+    ('"actuation.tensions[0]"', "sweep field"),
+])
+def test_bad_sweeps_exit_2(tmp_path, capsys, edit, message):
+    bad = {"[sweep.grid].'robot.youngs_modulus'": GRID.replace(edit, '"robot.youngs_modulus" = [150e9, 5]'),
+           "sweep field": GRID.replace(edit, '"robot.stiffness[0]"')}[message]
+    scene = tmp_path / "bad.toml"
+    scene.write_text(bad)
+    assert main(["workspace", str(scene), "--out", str(tmp_path / "o"), "--quiet"]) == 2
+    assert message in capsys.readouterr().err
