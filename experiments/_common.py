@@ -26,3 +26,64 @@ def write_report(path, report: dict) -> None:
     tmp.write_text(json.dumps(report, indent=2))
     os.replace(tmp, out)
     print(f"wrote {out}")
+
+
+def run_job(command: str, scene: Path, out: Path, *, smoke: bool, figure: str, extra: list[str] = ()) -> dict:
+    """Run a sweep command of the CLI on an example scene (in --smoke: its first two chunks of at
+    most 8 rods, with no figure copy) and copy its figure into docs/figures/. Returns summary.json."""
+    import shutil
+    import tomllib
+
+    from tdcr_warp.cli import main
+
+    data = tomllib.loads(Path(scene).read_text())
+    args = [command, str(scene), "--out", str(out), "--quiet", *extra]
+    if smoke:
+        # a tiny sweep of the same scene: few samples, coarse grid, short runs
+        sweep = data["sweep"]
+        if "grid" in sweep:
+            sweep["grid"] = {k: [v[0], v[1], min(v[2], 2)] for k, v in sweep["grid"].items()}
+        sweep["samples"] = min(sweep.get("samples", 8), 8)
+        sweep["chunk"] = 4
+        if "dynamics" in data:
+            data["dynamics"]["steps"] = 10
+        tiny = Path(out) / "smoke_scene.toml"
+        tiny.parent.mkdir(parents=True, exist_ok=True)
+        tiny.write_text(_to_toml(data))
+        args[1] = str(tiny)
+    rc = main(args)
+    if rc != 0:
+        raise SystemExit(f"{command} failed with status {rc}")
+    summary = json.loads((Path(out) / "summary.json").read_text())
+    if not smoke:
+        dest = ROOT / "docs" / "figures"
+        dest.mkdir(parents=True, exist_ok=True)
+        shutil.copy(Path(out) / figure, dest / figure)
+    return summary
+
+
+def _to_toml(data: dict, prefix: str = "") -> str:
+    """A minimal TOML writer for scene dicts (tables, arrays of tables, numbers, strings, lists)."""
+    def val(v):
+        if isinstance(v, str):
+            return json.dumps(v)
+        if isinstance(v, bool):
+            return "true" if v else "false"
+        if isinstance(v, list):
+            return "[" + ", ".join(val(x) for x in v) + "]"
+        return repr(v)
+    lines, tables = [], []
+    for k, v in data.items():
+        if isinstance(v, dict):
+            tables.append((k, v, False))
+        elif isinstance(v, list) and v and isinstance(v[0], dict):
+            tables.append((k, v, True))
+        else:
+            lines.append(f"{json.dumps(k)} = {val(v)}")
+    text = "\n".join(lines) + ("\n" if lines else "")
+    for k, v, many in tables:
+        name = f"{prefix}{json.dumps(k) if '.' in k else k}"
+        for item in (v if many else [v]):
+            text += f"\n[[{name}]]\n" if many else f"\n[{name}]\n"
+            text += _to_toml(item, prefix=f"{name}.")
+    return text

@@ -17,7 +17,7 @@ A ``[sweep]`` table turns fields of a single-rod scene into M sample rows:
 Field names: ``robot.<key>``, ``loads.<gravity|tip_force|tip_moment>[c]``,
 ``tendons[i].<offset[c]|radius|turns|phase|length>``, ``actuation.tensions[k]`` (tendon k),
 ``dynamics.<damping_shear|damping_bending|drag>[c]``, ``control.<gain_c[c]|gain_k[c]|target[c]|
-epsilon|phi|tension_max>``. Each chunk's results are written to ``chunks/chunk_NNNNN.npz`` as
+epsilon|phi|tension_max>``; a vector field without an index sets all its components. Each chunk's results are written to ``chunks/chunk_NNNNN.npz`` as
 soon as it is done, so ``resume=True`` continues where an interrupted sweep stopped.
 """
 
@@ -160,8 +160,8 @@ def apply_rows(data: dict, rows: dict[str, np.ndarray]) -> dict:
             done.add(leaf_path)
         cur = parent[leaf]
         for r in range(b):
-            if comp is None:
-                cur[r] = float(values[r])
+            if comp is None:  # a scalar, or every component of a vector
+                cur[r] = [float(values[r])] * len(cur[r]) if isinstance(cur[r], list) else float(values[r])
             else:
                 if not isinstance(cur[r], list) or comp >= len(cur[r]):
                     raise InputError(f"sweep field {name!r}: index {comp} out of range")
