@@ -174,7 +174,7 @@ def plot_workspace(tips: np.ndarray, total_tension: np.ndarray, cc: np.ndarray, 
 def plot_gain_grid(res: dict, fields: list, front: np.ndarray, out_dir: Path) -> None:
     """Heatmaps over the first two gain fields (best over the others) of settling time, final
     error and chatter, and the Pareto front settling time vs chatter."""
-    a, b = res[f"sample:{fields[0]}"], res[f"sample:{fields[-1]}"]
+    a, b = res[f"sample:{fields[0]}"], res[f"sample:{fields[min(1, len(fields) - 1)]}"]
     ua, ub = np.unique(a), np.unique(b)
     fig, axes = plt.subplots(1, 4, figsize=(18, 4.2))
     for ax, key, label in zip(axes[:3], ("settling_time", "final_error", "chatter"),
@@ -191,7 +191,7 @@ def plot_gain_grid(res: dict, fields: list, front: np.ndarray, out_dir: Path) ->
         ax.set_xticks(np.arange(len(ua)) + 0.5, [f"{x:.3g}" for x in ua], rotation=90, fontsize=7)
         ax.set_yticks(np.arange(len(ub)) + 0.5, [f"{y:.3g}" for y in ub], fontsize=7)
         ax.set_xlabel(fields[0])
-        ax.set_ylabel(fields[-1])
+        ax.set_ylabel(fields[min(1, len(fields) - 1)])
         ax.set_title(label)
         fig.colorbar(im, ax=ax)
     st = np.where(np.isfinite(res["settling_time"]), res["settling_time"], np.nan)
