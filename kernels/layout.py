@@ -25,6 +25,7 @@ MAX_ITER = 2
 NONFINITE = 4
 SINGULAR = 8
 STALLED = 16
+PRECISION_LIMITED = 32  # with CONVERGED: stopped at the round-off floor, residual above tol
 
 STATUS_NAMES = {
     CONVERGED: "converged",
@@ -32,6 +33,7 @@ STATUS_NAMES = {
     NONFINITE: "non-finite state",
     SINGULAR: "singular Jacobian",
     STALLED: "line search stalled",
+    PRECISION_LIMITED: "precision-limited (residual at round-off, above tol)",
 }
 
 # ``dyn`` array, shape (1 or B, DYN_WIDTH): dynamics parameters, SI units.

@@ -10,7 +10,8 @@ from types import SimpleNamespace
 
 import warp as wp
 
-from .layout import CONVERGED, KBT, LENGTH, MAX_ITER, NONFINITE, SINGULAR, STALLED, TIP_F, TIP_M
+from .layout import (CONVERGED, KBT, LENGTH, MAX_ITER, NONFINITE, PRECISION_LIMITED, SINGULAR, STALLED, TIP_F,
+                     TIP_M)
 from .rod import make_rod_funcs
 
 INTEGRATORS = ("euler", "rk4")
@@ -329,7 +330,7 @@ def make_shooting_kernels(dtype, integrator: str, model: str, dynamic: bool = Fa
             return
         nd = wp.length(dx)
         if fresh != 0 and nd < x_floor * wp.max(dtype(1.0), wp.length(x[i])):
-            status[i] = CONVERGED
+            status[i] = CONVERGED | PRECISION_LIMITED
             active[i] = 0
             flags[i] = 1 | 2
             return

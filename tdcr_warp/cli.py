@@ -197,11 +197,10 @@ def cmd_control(args) -> int:
 
 
 def _failure_counts(status: np.ndarray, ok: np.ndarray) -> dict[str, int]:
-    from .kernels import layout
+    from .statics import describe_status
     counts: dict[str, int] = {}
     for st in status[~ok]:
-        names = [v for k, v in layout.STATUS_NAMES.items() if int(st) & k] or ["not converged"]
-        key = ", ".join(names)
+        key = describe_status(st)
         counts[key] = counts.get(key, 0) + 1
     return counts
 

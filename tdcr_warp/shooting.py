@@ -257,11 +257,20 @@ class ShootingBatch:
         if J0 is not None:
             self.put(self.J, J0)
         self.need_jac.fill_(0 if (J0 is not None or keep_jacobian) else 1)
-        self.put(self.active, np.ones(self.b) if mask is None else mask)
-        for arr in (self.flags, self.status, self.iters, self.n_shoot):
-            arr.zero_()
-        self.lam.fill_(1.0)
-        self.resnorm.fill_(np.inf)
+        if mask is None:
+            self.put(self.active, np.ones(self.b))
+            for arr in (self.flags, self.status, self.iters, self.n_shoot):
+                arr.zero_()
+            self.lam.fill_(1.0)
+            self.resnorm.fill_(np.inf)
+        else:  # reset only the rods being solved; the others keep their results
+            m = np.asarray(mask).astype(bool)
+            self.put(self.active, m)
+            for arr, value in ((self.flags, 0), (self.status, 0), (self.iters, 0), (self.n_shoot, 0),
+                               (self.lam, 1.0), (self.resnorm, np.inf)):
+                a = arr.numpy().copy()
+                a[m] = value
+                self.put(arr, a)
         for _ in range(max_iter):
             wp.launch(k.shoot, dim=self.b * self.kern.n_probes, device=dev,
                       inputs=[self.args, self.xt, self.active, self.need_jac, self.res, self.out])

@@ -21,7 +21,13 @@ from .robot import InputError, Robot
 from .shooting import (PRECISIONS, ShootingBatch, check_tensions, host_tables, parallel, rows, split,
                        straight_guess, unknown_scales)
 
-__all__ = ["StaticOptions", "StaticSolution", "solve_static"]
+__all__ = ["StaticOptions", "StaticSolution", "describe_status", "solve_static"]
+
+
+def describe_status(status: int) -> str:
+    """The status bits of one rod in words."""
+    names = [v for k, v in layout.STATUS_NAMES.items() if int(status) & k]
+    return ", ".join(names) if names else "not converged"
 
 
 @dataclass(frozen=True)
@@ -35,7 +41,10 @@ class StaticOptions:
     1e-6 m in float32). max_iter: Newton iterations per rod. max_step: bound on a Newton
     step in scaled unknowns. jacobian: "broyden" (finite differences once, then rank-one
     updates; a rebuild when a step fails) or "newton" (finite differences at every
-    iterate). threads: CPU threads (None: all cores; CUDA uses one).
+    iterate). continuation: rods that fail from the straight-rod start, or whose load would
+    bend a straight rod by more than ~1.5 rad (where other equilibria exist), are solved by a
+    homotopy in tensions and loads, scaled by 1/c, ..., 1, each step from the last, with
+    c = max(continuation, load, sqrt(axial load L^2 / EI)) steps (0: off). threads: CPU threads (None: all cores; CUDA uses one).
     """
 
     nodes: int = 50
@@ -46,6 +55,7 @@ class StaticOptions:
     max_iter: int = 50
     max_step: float = 10.0
     jacobian: str = "broyden"
+    continuation: int = 8
     threads: int | None = None
 
     def __post_init__(self):
@@ -65,6 +75,8 @@ class StaticOptions:
             raise InputError(f"solver max_step must be positive, got {self.max_step!r}")
         if self.jacobian not in ("broyden", "newton"):
             raise InputError(f"solver jacobian must be 'broyden' or 'newton', got {self.jacobian!r}")
+        if not isinstance(self.continuation, int) or isinstance(self.continuation, bool) or self.continuation < 0:
+            raise InputError(f"solver continuation must be an integer >= 0, got {self.continuation!r}")
         if self.threads is not None and (not isinstance(self.threads, int) or self.threads < 1):
             raise InputError(f"solver threads must be a positive integer, got {self.threads!r}")
 
@@ -114,15 +126,50 @@ class StaticSolution:
 
     def failure_reasons(self) -> list[str]:
         """One string per rod: "converged" or why it failed."""
-        out = []
-        for st in self.status:
-            names = [v for k, v in layout.STATUS_NAMES.items() if int(st) & k]
-            out.append(", ".join(names) if names else "not converged")
-        return out
+        return [describe_status(st) for st in self.status]
 
     def to_npz(self, path) -> None:
         arrays = {k: v for k, v in asdict(self).items() if isinstance(v, np.ndarray)}
         np.savez_compressed(path, **arrays)
+
+
+LARGE_LOAD = 1.5  # scaled bending load of the straight-rod start: |m(0)| L / EI + |n_xy(0)| L^2 / EI
+MAX_CONTINUATION = 64
+
+
+def _continuation(bt: ShootingBatch, host: dict, tau: np.ndarray, x_full: np.ndarray, mask: np.ndarray,
+                  steps: int, newton: dict) -> None:
+    """Homotopy for the rods in ``mask``: tensions and external loads scaled by lam = j / steps,
+    each step from the last solution (the straight-rod start is linear in the loads). Rods
+    that fail on the way stop there, flagged. Iterations and integrations add up."""
+    rod0, pf0 = host["rod"], host["pforce"]
+    mask = mask.copy()
+    iters = np.zeros(bt.b, dtype=np.int64)
+    shots = np.zeros(bt.b, dtype=np.int64)
+    for j in range(1, steps + 1):
+        lam = j / steps
+        rod = rod0.copy()
+        for c in (layout.FE, layout.TIP_F, layout.TIP_M):
+            rod[:, c:c + 3] *= lam
+        bt.put(bt.args.rod, rod)
+        if pf0.shape[1]:
+            bt.put(bt.args.pforce, pf0 * lam)
+        bt.set_tensions(tau * lam)
+        bt.solve(x_full * lam if j == 1 else None, None, mask=mask, keep_jacobian=j > 1, **newton)
+        iters[mask] += bt.iters.numpy()[mask]
+        shots[mask] += bt.n_shoot.numpy()[mask]
+        mask &= (bt.status.numpy() & layout.CONVERGED) != 0
+        if not mask.any():
+            break
+    bt.put(bt.args.rod, rod0)
+    if pf0.shape[1]:
+        bt.put(bt.args.pforce, pf0)
+    bt.set_tensions(tau)
+    touched = shots > 0
+    it, sh = bt.iters.numpy().copy(), bt.n_shoot.numpy().copy()
+    it[touched], sh[touched] = iters[touched], shots[touched]
+    bt.put(bt.iters, it)
+    bt.put(bt.n_shoot, sh)
 
 
 def solve_static(robot: Robot, tensions, *, options: StaticOptions | None = None,
@@ -156,10 +203,23 @@ def solve_static(robot: Robot, tensions, *, options: StaticOptions | None = None
 
     def run(i):
         lo, hi = chunks[i]
-        batches[i].solve(x0[lo:hi], None if J0 is None else J0[lo:hi], tol=opts.tolerance,
-                         max_iter=opts.max_iter, max_step=opts.max_step,
-                         broyden=opts.jacobian == "broyden")
-        return batches[i].results()
+        newton = dict(tol=opts.tolerance, max_iter=opts.max_iter, max_step=opts.max_step,
+                      broyden=opts.jacobian == "broyden")
+        bt = batches[i]
+        bt.solve(x0[lo:hi], None if J0 is None else J0[lo:hi], **newton)
+        if opts.continuation and initial is None:
+            # Beyond ~1.5 rad of linear bending, Newton from the straight rod may land on another
+            # equilibrium (a looped cantilever under a large tip force): follow the load from zero.
+            load = np.linalg.norm(x0[lo:hi, 3:], axis=1) + np.linalg.norm(x0[lo:hi, :2], axis=1)
+            redo = ((bt.status.numpy() & layout.CONVERGED) == 0) | (load > LARGE_LOAD)
+            if redo.any():
+                # steps grow with the bending load and with the axial compression measured in
+                # Euler loads (sqrt(P L^2 / EI)): slender rods under large tendon loads need more
+                hard = np.maximum(load, np.sqrt(np.abs(x0[lo:hi, 2])))[redo].max()
+                steps = int(np.clip(np.ceil(hard), opts.continuation, MAX_CONTINUATION))
+                _continuation(bt, {k: rows(v, lo, hi) for k, v in host.items()}, tau[lo:hi], x0[lo:hi], redo,
+                              steps, newton)
+        return bt.results()
 
     parts = parallel(run, list(range(len(chunks))))
     out = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}

@@ -1,0 +1,141 @@
+"""Where the solvers converge: random rods inside a documented envelope, convergence rates.
+
+Statics envelope (dimensionless groups sampled, then turned into SI inputs):
+  bend angle of the tendon load theta = sum(tau) r_off L / EI in [0, pi] (up to a half turn),
+  E in [1e5, 1e12] Pa (log-uniform), L in [0.05, 5] m, slenderness L / r in [50, 500]
+  (log-uniform, radius in [2e-4, 2e-2] m), tendon offsets in [1.5, 15] rod radii, 1 to 4
+  tendons at random angles, gravity sag rho A g L^3 / EI in [0, 2] in a random direction,
+  nodes N in {10, 20, 50, 200}, coupled or point model, float64 or float32.
+Beyond it (measured, failures flagged): a full curl (theta up to 2 pi), slenderness 20 to 2000, N = 5.
+Dynamics envelope: the same rods up to a quarter turn, 5 steps of dt in [1e-3, 1] s (log-uniform)
+with alpha in [-0.48, 0] and Bbt giving modal damping ratio in [0, 1], only where the
+single-shooting amplification exp(L (rho A c0^2 / EI)^(1/4) / sqrt 2) < 1e6.
+
+    python experiments/envelope.py [--smoke] [--samples 100000] [--out results/envelope.json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path[:0] = [str(ROOT / "experiments")]
+
+import tdcr_warp as tw  # noqa: E402
+from _common import metadata, write_report  # noqa: E402
+
+NODES = (10, 20, 50, 200)
+ENVELOPE = dict(bend_max=np.pi, slender=(50.0, 500.0))
+BEYOND = dict(bend_max=2 * np.pi, slender=(20.0, 2000.0))
+K_MAX = 4
+
+
+def sample_envelope(n: int, rng, *, bend_max: float = np.pi, slender=(50.0, 500.0)) -> dict:
+    """n random rods inside the statics envelope: per-rod Robot fields and tensions (n, 4)."""
+    logu = lambda a, b: np.exp(rng.uniform(np.log(a), np.log(b), n))  # noqa: E731
+    E = logu(1e5, 1e12)
+    L = logu(0.05, 5.0)
+    slender = logu(*slender)
+    r = np.clip(L / slender, 2e-4, 2e-2)
+    L = r * slender
+    I = np.pi * r**4 / 4
+    EI = E * I
+    rho = 7800.0
+    sag = rng.uniform(0, 2, n)
+    g = sag * EI / (rho * np.pi * r**2 * L**3)  # gravity magnitude giving that sag [m/s^2]
+    gdir = rng.normal(size=(n, 3))
+    gdir /= np.linalg.norm(gdir, axis=1, keepdims=True)
+    off = r * rng.uniform(1.5, 15.0, n)
+    k_used = rng.integers(1, K_MAX + 1, n)
+    theta = rng.uniform(0, bend_max, n)
+    share = rng.dirichlet(np.ones(K_MAX), n) * (np.arange(K_MAX)[None] < k_used[:, None])
+    share /= share.sum(axis=1, keepdims=True)
+    tau = share * (theta * EI / (off * L))[:, None]
+    angles = rng.uniform(0, 2 * np.pi, (n, K_MAX))
+    tendons = [tw.Tendon(offset=np.c_[off * np.cos(angles[:, k]), off * np.sin(angles[:, k])]) for k in range(K_MAX)]
+    return dict(robot=dict(length=L, youngs_modulus=E, radius=r, density=np.full(n, rho),
+                           gravity=gdir * g[:, None], tendons=tendons), tensions=tau, theta=theta)
+
+
+def run_statics(samples: int, rng, precision: str, model: str, nodes: int, region: dict = ENVELOPE) -> dict:
+    s = sample_envelope(samples, rng, **region)
+    rob = tw.Robot(**s["robot"])
+    t0 = time.perf_counter()
+    sol = tw.solve_static(rob, s["tensions"], nodes=nodes, model=model, precision=precision)
+    wall = time.perf_counter() - t0
+    ok = sol.converged
+    finite = np.isfinite(sol.positions[ok]).all() and np.isfinite(sol.base_wrench[ok]).all()
+    reasons = {}
+    for reason in np.array(sol.failure_reasons())[~ok]:
+        reasons[reason] = reasons.get(reason, 0) + 1
+    return dict(samples=samples, precision=precision, model=model, nodes=nodes, region=region,
+                converged=float(ok.mean()),
+                failed=int((~ok).sum()), reasons=reasons, converged_all_finite=bool(finite),
+                precision_limited=int(((sol.status & 32) != 0).sum()), seconds=wall,
+                failed_theta=s["theta"][~ok].tolist()[:20])
+
+
+def run_dynamics(samples: int, rng) -> dict:
+    s = sample_envelope(samples, rng, bend_max=np.pi / 2)
+    rob0 = tw.Robot(**s["robot"])
+    sec = rob0.section()
+    EI = sec["kbt"][:, 0]
+    rhoA = 7800.0 * sec["area"]
+    L = rob0.length
+    omega = 1.8751**2 * np.sqrt(EI / (rhoA * L**4))
+    zeta = rng.uniform(0, 1, samples)
+    dt = np.exp(rng.uniform(np.log(1e-3), np.log(1.0), samples))
+    alpha = rng.uniform(-0.48, 0.0, samples)
+    c0 = (1.5 + alpha) / (dt * (1 + alpha))
+    amp = L * (rhoA * c0**2 / EI) ** 0.25 / np.sqrt(2)
+    inside = amp < np.log(1e6)
+    results = {"inside": int(inside.sum()), "converged": 0, "failed": 0, "skipped_outside": int((~inside).sum())}
+    for b in np.flatnonzero(inside):
+        rob = tw.Robot(length=L[b], youngs_modulus=rob0.youngs_modulus[b], radius=rob0.radius[b], density=7800.0,
+                       gravity=s["robot"]["gravity"][b],
+                       tendons=[tw.Tendon(offset=t.offset[b]) for t in s["robot"]["tendons"]],
+                       damping_bending=np.full(3, 2 * zeta[b] * EI[b] / omega[b]))
+        sim = tw.Simulator(rob, np.zeros((1, K_MAX)), dt=float(dt[b]), alpha=float(alpha[b]), nodes=20)
+        tr = sim.simulate(np.tile(s["tensions"][b], (5, 1)), 5)
+        results["converged" if tr.converged.all() else "failed"] += 1
+    results["rate"] = results["converged"] / max(1, results["inside"])
+    return results
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--smoke", action="store_true")
+    ap.add_argument("--samples", type=int, default=100000, help="statics rods, main configuration")
+    ap.add_argument("--dynamic-samples", type=int, default=300)
+    ap.add_argument("--device", default="cpu")
+    ap.add_argument("--out", default=str(ROOT / "results" / "envelope.json"))
+    args = ap.parse_args(argv)
+    n = 64 if args.smoke else args.samples
+    rng = np.random.default_rng(2026)
+    rows = []
+    # (precision, model, nodes, region, share of the sample count)
+    configs = [("float64", "coupled", 20, ENVELOPE, 1.0), ("float64", "point", 20, ENVELOPE, 0.1),
+               ("float32", "coupled", 20, ENVELOPE, 0.1), ("float64", "coupled", 20, BEYOND, 0.1),
+               ("float64", "coupled", 5, ENVELOPE, 0.1)]
+    configs += [("float64", "coupled", nn, ENVELOPE, 0.1 if nn < 200 else 0.01) for nn in NODES if nn != 20]
+    for precision, model, nodes, region, share in configs:
+        samples = max(16, int(n * share))
+        row = run_statics(samples, rng, precision, model, nodes, region)
+        rows.append(row)
+        tag = "envelope" if region is ENVELOPE else "beyond  "
+        print(f"statics {tag} {precision} {model:8s} N={nodes:4d}: {row['converged']:.4%} of {samples} converged "
+              f"({row['failed']} failed: {row['reasons']}), {samples / row['seconds']:,.0f} rods/s")
+    dyn = run_dynamics(8 if args.smoke else args.dynamic_samples, rng)
+    print(f"dynamics: {dyn['converged']} of {dyn['inside']} inside the envelope converged every step "
+          f"({dyn['skipped_outside']} sampled outside it)")
+    write_report(args.out, {"meta": metadata(args.device), "statics": rows, "dynamics": dyn})
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
