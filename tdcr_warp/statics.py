@@ -210,12 +210,15 @@ def solve_static(robot: Robot, tensions, *, options: StaticOptions | None = None
         if opts.continuation and initial is None:
             # Beyond ~1.5 rad of linear bending, Newton from the straight rod may land on another
             # equilibrium (a looped cantilever under a large tip force): follow the load from zero.
-            load = np.linalg.norm(x0[lo:hi, 3:], axis=1) + np.linalg.norm(x0[lo:hi, :2], axis=1)
-            redo = ((bt.status.numpy() & layout.CONVERGED) == 0) | (load > LARGE_LOAD)
+            with np.errstate(all="ignore"):  # absurd inputs overflow: those rods are flagged anyway
+                load = np.linalg.norm(x0[lo:hi, 3:], axis=1) + np.linalg.norm(x0[lo:hi, :2], axis=1)
+                compression = np.sqrt(np.abs(x0[lo:hi, 2]))
+            finite = np.isfinite(load) & np.isfinite(compression)
+            redo = finite & (((bt.status.numpy() & layout.CONVERGED) == 0) | (load > LARGE_LOAD))
             if redo.any():
                 # steps grow with the bending load and with the axial compression measured in
                 # Euler loads (sqrt(P L^2 / EI)): slender rods under large tendon loads need more
-                hard = np.maximum(load, np.sqrt(np.abs(x0[lo:hi, 2])))[redo].max()
+                hard = np.maximum(load, compression)[redo].max()
                 steps = int(np.clip(np.ceil(hard), opts.continuation, MAX_CONTINUATION))
                 _continuation(bt, {k: rows(v, lo, hi) for k, v in host.items()}, tau[lo:hi], x0[lo:hi], redo,
                               steps, newton)

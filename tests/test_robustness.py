@@ -1,0 +1,171 @@
+"""Hard cases solved or flagged, never hidden: continuation, isolation of failing rods, the
+documented envelope, float32 precision loss, and hostile scenes fed to the CLI."""
+
+import importlib.util
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+import tdcr_warp as tw
+from tdcr_warp.cli import main
+from tdcr_warp.kernels import layout
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_continuation_reaches_what_plain_newton_misses():
+    rob = tw.Robot(length=0.5, tip_force=(3.0, 0.0, 0.0))
+    plain = tw.solve_static(rob, np.zeros((1, 0)), nodes=40, continuation=0)
+    cont = tw.solve_static(rob, np.zeros((1, 0)), nodes=40)
+    assert not plain.converged[0] and cont.converged[0]
+    assert cont.tip_position[0, 0] > 0.3  # a large deflection towards the force
+
+
+def test_large_load_follows_the_principal_branch():
+    """12 N on a 0.5 m steel cantilever: Newton from the straight rod finds a looped equilibrium;
+    the load-following solve finds the one reached by loading from zero."""
+    prev = None
+    for lam in np.linspace(0.1, 1.0, 10):  # a manual, fine homotopy as the reference
+        prev = tw.solve_static(tw.Robot(length=0.5, tip_force=(12.0 * lam, 0, 0)), np.zeros((1, 0)), nodes=40,
+                               initial=prev)
+    sol = tw.solve_static(tw.Robot(length=0.5, tip_force=(12.0, 0, 0)), np.zeros((1, 0)), nodes=40)
+    assert sol.converged[0]
+    assert np.abs(sol.tip_position[0] - prev.tip_position[0]).max() < 1e-9
+    looped = tw.solve_static(tw.Robot(length=0.5, tip_force=(12.0, 0, 0)), np.zeros((1, 0)), nodes=40,
+                             continuation=0)
+    assert np.abs(looped.tip_position[0] - prev.tip_position[0]).max() > 0.1
+
+
+def test_rod_among_failing_rods_equals_alone():
+    B = 8
+    E = np.full(B, 1e5)
+    E[0] = 190e9
+    tau = np.full((B, 1), 5e3)
+    tau[0] = 3.0
+    rob = tw.Robot(length=0.5, youngs_modulus=E, tendons=[tw.Tendon(offset=(0.01, 0.0))], gravity=(0, -9.81, 0))
+    batch = tw.solve_static(rob, tau, nodes=20, max_iter=8, continuation=2)
+    assert (~batch.converged[1:]).all(), "the other rods should fail in this test"
+    alone = tw.solve_static(tw.Robot(length=0.5, tendons=[tw.Tendon(offset=(0.01, 0.0))], gravity=(0, -9.81, 0)),
+                            tau[:1], nodes=20, max_iter=8, continuation=2)
+    assert batch.converged[0] and np.abs(batch.positions[0] - alone.positions[0]).max() < 1e-12
+    assert all(r != "converged" for r in batch.failure_reasons()[1:])
+
+
+def _envelope_module():
+    spec = importlib.util.spec_from_file_location("envelope", ROOT / "experiments" / "envelope.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_random_rods_inside_the_envelope_converge():
+    """Seeded sample of the documented envelope (README); 1e5 samples measured 100%."""
+    env = _envelope_module()
+    s = env.sample_envelope(600, np.random.default_rng(7))
+    sol = tw.solve_static(tw.Robot(**s["robot"]), s["tensions"], nodes=20)
+    rate = sol.converged.mean()
+    assert rate >= 0.999, f"{rate:.2%} converged; reasons {set(sol.failure_reasons()) - {'converged'}}"
+    ok = sol.converged
+    assert np.isfinite(sol.positions[ok]).all() and np.isfinite(sol.base_wrench[ok]).all()
+
+
+def test_float32_precision_loss_is_flagged():
+    rob = tw.Robot(length=0.5, tendons=[tw.Tendon(offset=(0.01, 0.0)), tw.Tendon(offset=(0.0, 0.01))],
+                   gravity=(0, 0, -9.81))
+    sol = tw.solve_static(rob, [[2.0, 1.0]], precision="float32", tol=1e-12)
+    st0 = int(sol.status[0])
+    assert (not sol.converged[0]) or (st0 & layout.PRECISION_LIMITED), sol.failure_reasons()
+    if sol.converged[0]:
+        assert "precision-limited" in sol.failure_reasons()[0]
+
+
+# ---- hostile input -------------------------------------------------------------------------
+
+def _toml_value(v):
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, float):
+        return "nan" if math.isnan(v) else ("inf" if v == math.inf else "-inf" if v == -math.inf else repr(v))
+    if isinstance(v, str):
+        return json.dumps(v)
+    if isinstance(v, list):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    return repr(v)
+
+
+def _to_toml(scene: dict) -> str:
+    text = ""
+    for table, body in scene.items():
+        if isinstance(body, list):
+            for item in body:
+                text += f"[[{table}]]\n" + "".join(f"{k} = {_toml_value(v)}\n" for k, v in item.items())
+        else:
+            text += f"[{table}]\n" + "".join(f"{k} = {_toml_value(v)}\n" for k, v in body.items())
+    return text
+
+
+numbers = st.one_of(st.floats(allow_nan=True, allow_infinity=True, width=64), st.integers(-10**6, 10**6),
+                    st.sampled_from([0.0, -1.0, 1e-300, 1e300, 0.5, 190e9, 1e-3]))
+values = st.one_of(numbers, st.text(max_size=5), st.booleans(), st.lists(numbers, max_size=4),
+                   st.lists(st.lists(numbers, max_size=5), max_size=3))
+GOOD = {"robot": {"length": 0.5, "youngs_modulus": 190e9, "poisson_ratio": 0.3, "radius": 1e-3, "density": 7800.0},
+        "tendons": [{"offset": [0.01, 0.0]}], "actuation": {"tensions": [[1.0]]}, "solver": {"nodes": 10}}
+
+
+@st.composite
+def hostile_scenes(draw):
+    scene = json.loads(json.dumps(GOOD))
+    for _ in range(draw(st.integers(1, 3))):
+        table = draw(st.sampled_from(["robot", "actuation", "solver", "loads", "tendons"]))
+        key = draw(st.sampled_from(["length", "youngs_modulus", "poisson_ratio", "radius", "density", "tensions",
+                                    "nodes", "gravity", "tip_force", "offset", "routing", "max_iter", "tol",
+                                    "bogus"]))
+        action = draw(st.sampled_from(["set", "delete"]))
+        target = scene["tendons"][0] if table == "tendons" else scene.setdefault(table, {})
+        if action == "delete":
+            target.pop(key, None)
+        else:
+            target[key] = draw(values)
+    return scene
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(scene=hostile_scenes())
+def test_hostile_scenes_end_cleanly(tmp_path, scene, capsys):
+    path = tmp_path / "hostile.toml"
+    path.write_text(_to_toml(scene))
+    out = tmp_path / "out"
+    if (out / "results.json").exists():
+        (out / "results.json").unlink()
+    rc = main(["static", str(path), "--out", str(out)])
+    err = capsys.readouterr().err
+    assert rc in (0, 1, 2)
+    assert "Traceback" not in err
+    if rc == 2:
+        assert err.startswith("tdcr-warp: error: ") and not (out / "results.json").exists()
+    else:
+        res = json.loads((out / "results.json").read_text())  # complete, parseable
+        for rod in res["rods"]:
+            if rod["converged"]:
+                assert all(math.isfinite(x) for x in rod["tip_position"]), rod
+
+
+@settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(text=st.text(max_size=200))
+def test_garbage_files_exit_2(tmp_path, text, capsys):
+    path = tmp_path / "garbage.toml"
+    path.write_text(text)
+    assert main(["static", str(path), "--out", str(tmp_path / "o")]) == 2
+    assert "Traceback" not in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("argv", [["static"], ["static", "a.toml", "--nodes", "x"], ["nonsense"]])
+def test_bad_command_lines_exit_2(argv):
+    with pytest.raises(SystemExit) as e:
+        main(argv)
+    assert e.value.code == 2
