@@ -157,6 +157,16 @@ class Robot:
             fields[f"point_forces[{j}].s"] = pf.s
             fields[f"point_forces[{j}].force"] = pf.force
         object.__setattr__(self, "batch_size", _batch(fields))
+        with np.errstate(all="ignore"):
+            sec = self.section()
+            derived = {"bending stiffness E I (from youngs_modulus, radius)": sec["kbt"][:, 0],
+                       "axial stiffness E A (from youngs_modulus, radius)": sec["kse"][:, 2],
+                       "scaled moment scale E I / L (from youngs_modulus, radius, length)":
+                           np.broadcast_to(sec["kbt"][:, 0], np.broadcast_shapes(sec["kbt"][:, 0].shape, self.length.shape))
+                           / self.length}
+        for name, val in derived.items():
+            ok = np.isfinite(val) & (val > 0) & (val < 1e300)
+            _check(name, np.asarray(val), ok, "finite and positive (the inputs are out of range)")
         L = self.length
         for i, t in enumerate(self.tendons):
             if t.length is not None:

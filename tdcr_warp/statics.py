@@ -59,26 +59,27 @@ class StaticOptions:
     threads: int | None = None
 
     def __post_init__(self):
-        if not isinstance(self.nodes, int) or isinstance(self.nodes, bool) or self.nodes < 1:
-            raise InputError(f"solver nodes must be a positive integer, got {self.nodes!r}")
-        if self.integrator not in INTEGRATORS:
-            raise InputError(f"solver integrator must be one of {INTEGRATORS}, got {self.integrator!r}")
-        if self.model not in MODELS:
-            raise InputError(f"solver model must be one of {MODELS}, got {self.model!r}")
-        if self.precision not in PRECISIONS:
-            raise InputError(f"solver precision must be one of {tuple(PRECISIONS)}, got {self.precision!r}")
-        if self.tol is not None and not (self.tol > 0 and math.isfinite(self.tol)):
-            raise InputError(f"solver tol must be a positive number, got {self.tol!r}")
-        if not isinstance(self.max_iter, int) or self.max_iter < 1:
-            raise InputError(f"solver max_iter must be a positive integer, got {self.max_iter!r}")
-        if not (self.max_step > 0):
-            raise InputError(f"solver max_step must be positive, got {self.max_step!r}")
-        if self.jacobian not in ("broyden", "newton"):
-            raise InputError(f"solver jacobian must be 'broyden' or 'newton', got {self.jacobian!r}")
-        if not isinstance(self.continuation, int) or isinstance(self.continuation, bool) or self.continuation < 0:
-            raise InputError(f"solver continuation must be an integer >= 0, got {self.continuation!r}")
-        if self.threads is not None and (not isinstance(self.threads, int) or self.threads < 1):
-            raise InputError(f"solver threads must be a positive integer, got {self.threads!r}")
+        def integer(v, low):
+            return isinstance(v, int) and not isinstance(v, bool) and v >= low
+
+        def positive(v):
+            return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v > 0
+
+        checks = [
+            ("nodes", integer(self.nodes, 1), "a positive integer"),
+            ("integrator", self.integrator in INTEGRATORS, f"one of {INTEGRATORS}"),
+            ("model", self.model in MODELS, f"one of {MODELS}"),
+            ("precision", self.precision in PRECISIONS, f"one of {tuple(PRECISIONS)}"),
+            ("tol", self.tol is None or positive(self.tol), "a positive number"),
+            ("max_iter", integer(self.max_iter, 1), "a positive integer"),
+            ("max_step", positive(self.max_step), "a positive number"),
+            ("jacobian", self.jacobian in ("broyden", "newton"), "'broyden' or 'newton'"),
+            ("continuation", integer(self.continuation, 0), "an integer >= 0"),
+            ("threads", self.threads is None or integer(self.threads, 1), "a positive integer"),
+        ]
+        for name, ok, what in checks:
+            if not ok:
+                raise InputError(f"solver {name} must be {what}, got {getattr(self, name)!r}")
 
     @property
     def tolerance(self) -> float:
