@@ -129,6 +129,7 @@ class Simulator:
             bt.args.c0 = bt.wdtype(self.coef[0])
             bt.x.assign(bt.xt)
         self._x_prev = [None] * len(self.batches)
+        self._tau_prev = tau
         self.alive = np.ones(self.B, dtype=bool)
         self.failed_step = np.full(self.B, -1)
         self.steps_done = 0
@@ -161,11 +162,23 @@ class Simulator:
             x = bt.x.numpy().astype(np.float64)
             x_pred = 2.0 * x - self._x_prev[i] if self.steps_done > 0 else x
             self._x_prev[i] = x
-            bt.solve(x_pred, None, tol=o.tolerance, max_iter=o.max_iter, max_step=o.max_step,
-                     broyden=o.jacobian == "broyden", mask=self.alive[lo:hi].astype(np.int32),
-                     keep_jacobian=keep)
+            newton = dict(tol=o.tolerance, max_iter=o.max_iter, max_step=o.max_step, broyden=o.jacobian == "broyden")
+            alive = self.alive[lo:hi]
+            bt.solve(x_pred, None, mask=alive, keep_jacobian=keep, **newton)
+            failed = alive & ((bt.status.numpy() & layout.CONVERGED) == 0)
+            if failed.any() and o.continuation:
+                # A large tension change in one step: reach it by a homotopy in the tension
+                # increment, each sub-problem from the last (same time step, same history).
+                tau_prev = self._tau_prev[lo:hi]
+                on_path = failed  # rods still following the homotopy
+                for j in range(1, o.continuation + 1):
+                    bt.set_tensions(tau_prev + (j / o.continuation) * (tau[lo:hi] - tau_prev))
+                    bt.solve(x if j == 1 else None, None, mask=on_path, keep_jacobian=j > 1, **newton)
+                    on_path &= (bt.status.numpy() & layout.CONVERGED) != 0
+                    if not on_path.any():
+                        break
             status = bt.status.numpy().copy()
-            ok = ((status & layout.CONVERGED) != 0) & self.alive[lo:hi]
+            ok = ((status & layout.CONVERGED) != 0) & alive
             self._launch_advance(bt, yp, ok.astype(np.int32))
             p = bt.out.p.numpy()[:, -1].astype(np.float64)
             R = bt.out.R.numpy()[:, -1].astype(np.float64)
@@ -174,6 +187,7 @@ class Simulator:
                     np.einsum("bij,bj->bi", R, q))
 
         parts = parallel(run, list(range(len(self.chunks))))
+        self._tau_prev = tau
         self._have_jacobian = True
         ok, status, iters, resid, p, v = (np.concatenate(x) for x in zip(*parts))
         newly_failed = self.alive & ~ok
