@@ -166,17 +166,20 @@ class Simulator:
             alive = self.alive[lo:hi]
             bt.solve(x_pred, None, mask=alive, keep_jacobian=keep, **newton)
             failed = alive & ((bt.status.numpy() & layout.CONVERGED) == 0)
-            if failed.any() and o.continuation:
+            for n_sub in (o.continuation, 4 * o.continuation):  # a finer homotopy if needed
+                if not (failed.any() and n_sub):
+                    break
                 # A large tension change in one step: reach it by a homotopy in the tension
                 # increment, each sub-problem from the last (same time step, same history).
                 tau_prev = self._tau_prev[lo:hi]
-                on_path = failed  # rods still following the homotopy
-                for j in range(1, o.continuation + 1):
-                    bt.set_tensions(tau_prev + (j / o.continuation) * (tau[lo:hi] - tau_prev))
+                on_path = failed.copy()  # rods still following the homotopy
+                for j in range(1, n_sub + 1):
+                    bt.set_tensions(tau_prev + (j / n_sub) * (tau[lo:hi] - tau_prev))
                     bt.solve(x if j == 1 else None, None, mask=on_path, keep_jacobian=j > 1, **newton)
                     on_path &= (bt.status.numpy() & layout.CONVERGED) != 0
                     if not on_path.any():
                         break
+                failed &= (bt.status.numpy() & layout.CONVERGED) == 0
             status = bt.status.numpy().copy()
             ok = ((status & layout.CONVERGED) != 0) & alive
             self._launch_advance(bt, yp, ok.astype(np.int32))
