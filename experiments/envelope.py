@@ -94,7 +94,8 @@ def run_dynamics(samples: int, rng) -> dict:
     c0 = (1.5 + alpha) / (dt * (1 + alpha))
     amp = L * (rhoA * c0**2 / EI) ** 0.25 / np.sqrt(2)
     inside = amp < np.log(1e6)
-    results = {"inside": int(inside.sum()), "converged": 0, "failed": 0, "skipped_outside": int((~inside).sum())}
+    results = {"inside": int(inside.sum()), "converged": 0, "failed": 0, "skipped_outside": int((~inside).sum()),
+               "failures": []}
     for b in np.flatnonzero(inside):
         rob = tw.Robot(length=L[b], youngs_modulus=rob0.youngs_modulus[b], radius=rob0.radius[b], density=7800.0,
                        gravity=s["robot"]["gravity"][b],
@@ -103,6 +104,12 @@ def run_dynamics(samples: int, rng) -> dict:
         sim = tw.Simulator(rob, np.zeros((1, K_MAX)), dt=float(dt[b]), alpha=float(alpha[b]), nodes=20)
         tr = sim.simulate(np.tile(s["tensions"][b], (5, 1)), 5)
         results["converged" if tr.converged.all() else "failed"] += 1
+        if not tr.converged.all():
+            f = int(tr.failed_step[0])
+            results["failures"].append(dict(step=f, status=int(tr.status[f, 0]), dt=float(dt[b]),
+                                            alpha=float(alpha[b]), amplification=float(np.exp(amp[b])),
+                                            zeta=float(zeta[b]), theta=float(s["theta"][b]),
+                                            slenderness=float(L[b] / rob0.radius[b])))
     results["rate"] = results["converged"] / max(1, results["inside"])
     return results
 
@@ -132,7 +139,7 @@ def main(argv=None) -> int:
               f"({row['failed']} failed: {row['reasons']}), {samples / row['seconds']:,.0f} rods/s")
     dyn = run_dynamics(8 if args.smoke else args.dynamic_samples, rng)
     print(f"dynamics: {dyn['converged']} of {dyn['inside']} inside the envelope converged every step "
-          f"({dyn['skipped_outside']} sampled outside it)")
+          f"({dyn['skipped_outside']} sampled outside it); failures: {dyn['failures']}")
     write_report(args.out, {"meta": metadata(args.device), "statics": rows, "dynamics": dyn})
     return 0
 
