@@ -14,20 +14,39 @@ evaluation at the trial point writes its values to ``ycur`` when asked (``store`
 
 import functools
 from types import SimpleNamespace
+from typing import NamedTuple
 
 import warp as wp
 
 from .layout import BBT, BSE, DRAG, FE, KBT, KSE, RHOA, RHOJ, T_A, T_PHASE, T_W, T_X0, T_Y0, USTAR
 
 MODELS = ("coupled", "point")
+RODS = ("cosserat", "kirchhoff")
+
+
+class Features(NamedTuple):
+    """Physics a scene contains; a False field compiles its terms out (``ALL``: the general kernel)."""
+
+    gravity: bool = True  # distributed external force rho A g
+    point_loads: bool = True  # point forces along the rod
+    helix: bool = True  # helical (non-straight) tendon routing
+    drag: bool = True  # square-law drag (dynamics)
+
+
+ALL = Features()
 SLOT_V, SLOT_U, SLOT_Q, SLOT_W, SLOT_DV, SLOT_DU = 0, 1, 2, 3, 4, 5
 SLOT_WIDTH = 6
 
 
 @functools.cache
-def make_rod_funcs(dtype, model: str, dynamic: bool):
+def make_rod_funcs(dtype, model: str, dynamic: bool, rod: str = "cosserat", features: Features = ALL):
+    """``rod``: "cosserat" (shear and extension) or "kirchhoff" (inextensible, unshearable:
+    v = v*, so v' = 0 and the coupled tendon system shrinks to 3x3 for u')."""
     if model not in MODELS:
         raise ValueError(f"model must be one of {MODELS}, got {model!r}")
+    if rod not in RODS:
+        raise ValueError(f"rod must be one of {RODS}, got {rod!r}")
+    kirchhoff = rod == "kirchhoff"
     vec3 = wp.types.vector(3, dtype)
     mat33 = wp.types.matrix((3, 3), dtype)
     zero = dtype(0.0)
@@ -66,6 +85,8 @@ def make_rod_funcs(dtype, model: str, dynamic: bool):
     def tendon_route(a: RodArgs, b: int, k: int, s: dtype):
         """Body-frame routing r(s) of tendon k and its first two arc-length derivatives."""
         it = b % a.tendon.shape[0]
+        if wp.static(not features.helix):
+            return vec3(a.tendon[it, k, T_X0], a.tendon[it, k, T_Y0], zero), vec3(), vec3()
         ra = a.tendon[it, k, T_A]
         w = a.tendon[it, k, T_W]
         ang = w * s + a.tendon[it, k, T_PHASE]
@@ -89,15 +110,19 @@ def make_rod_funcs(dtype, model: str, dynamic: bool):
         rtn = wp.transpose(R) * n
         rtm = wp.transpose(R) * m
         ustar = rvec(a, b, USTAR)
+        v = vec3(zero, zero, one)
         if wp.static(dynamic):
             bse = dvec(a, b, BSE)
             bbt = dvec(a, b, BBT)
-            v = wp.cw_div(rtn + kse[2] * vec3(zero, zero, one) - wp.cw_mul(bse, a.hist[b, slot, SLOT_V]),
-                          kse + a.c0 * bse)
+            if wp.static(not kirchhoff):
+                v = wp.cw_div(rtn + kse[2] * vec3(zero, zero, one) - wp.cw_mul(bse, a.hist[b, slot, SLOT_V]),
+                              kse + a.c0 * bse)
             u = wp.cw_div(rtm + wp.cw_mul(kbt, ustar) - wp.cw_mul(bbt, a.hist[b, slot, SLOT_U]),
                           kbt + a.c0 * bbt)
             return v, u
-        return wp.cw_div(rtn, kse) + vec3(zero, zero, one), wp.cw_div(rtm, kbt) + ustar
+        if wp.static(not kirchhoff):
+            v = wp.cw_div(rtn, kse) + v
+        return v, wp.cw_div(rtm, kbt) + ustar
 
     @wp.func
     def store_slot(a: RodArgs, b: int, slot: int, v: vec3, u: vec3, q: vec3, w: vec3, dv: vec3, du: vec3):
@@ -113,7 +138,6 @@ def make_rod_funcs(dtype, model: str, dynamic: bool):
             step: int, slot: int, store: int):
         """d/ds of (p, R, n, m, q, w) on the interval after node ``step``."""
         Rt = wp.transpose(R)
-        fe = rvec(a, b, FE)
         rtn = Rt * n  # Kse (v - v*) + Bse v_t
         rtm = Rt * m  # Kbt (u - u*) + Bbt u_t
         v, u = strains(a, b, R, n, m, slot)
@@ -121,7 +145,9 @@ def make_rod_funcs(dtype, model: str, dynamic: bool):
         dR = R * wp.skew(u)
         dq = vec3()
         dw = vec3()
-        lam_n = -(Rt * fe)  # body-frame distributed load terms, moved to the left
+        lam_n = vec3()  # body-frame distributed load terms, moved to the left
+        if wp.static(features.gravity):
+            lam_n = -(Rt * rvec(a, b, FE))
         lam_m = vec3()
         if wp.static(dynamic):
             rho_a = a.dyn[b % a.dyn.shape[0], RHOA]
@@ -132,8 +158,10 @@ def make_rod_funcs(dtype, model: str, dynamic: bool):
             wt = a.c0 * w + a.hist[b, slot, SLOT_W]
             dq = vt - wp.cross(u, q) + wp.cross(w, v)
             dw = ut - wp.cross(u, w)
-            drag = wp.cw_mul(dvec(a, b, DRAG), wp.cw_mul(q, vec3(wp.abs(q[0]), wp.abs(q[1]), wp.abs(q[2]))))
-            lam_n = lam_n + rho_a * (wp.cross(w, q) + qt) + drag
+            lam_n = lam_n + rho_a * (wp.cross(w, q) + qt)
+            if wp.static(features.drag):
+                lam_n = lam_n + wp.cw_mul(dvec(a, b, DRAG), wp.cw_mul(q, vec3(wp.abs(q[0]), wp.abs(q[1]),
+                                                                             wp.abs(q[2]))))
             lam_m = wp.cross(w, wp.cw_mul(rho_j, w)) + wp.cw_mul(rho_j, wt)
         dn = R * lam_n
         dm = R * lam_m - wp.cross(dp, n)
@@ -174,10 +202,13 @@ def make_rod_funcs(dtype, model: str, dynamic: bool):
                 d = d - wp.cw_mul(dvec(a, b, BBT), a.hist[b, slot, SLOT_DU])
             # 6x6 solve [[Kse + c0 Bse + A, G], [B, Kbt + c0 Bbt + H]] [v'; u'] = [c; d]
             # by the Schur complement of the upper-left block.
-            Pinv = wp.inverse(wp.diag(kse) + As)
-            S = wp.diag(kbt) + Hs - Bs * Pinv * Gs
-            du = wp.inverse(S) * (d - Bs * (Pinv * c))
-            dv = Pinv * (c - Gs * du)
+            if wp.static(kirchhoff):  # v' = 0: the lower block row alone
+                du = wp.inverse(wp.diag(kbt) + Hs) * d
+            else:
+                Pinv = wp.inverse(wp.diag(kse) + As)
+                S = wp.diag(kbt) + Hs - Bs * Pinv * Gs
+                du = wp.inverse(S) * (d - Bs * (Pinv * c))
+                dv = Pinv * (c - Gs * du)
             dn = dn - R * (a_sum + As * dv + Gs * du)
             dm = dm - R * (b_sum + Bs * dv + Hs * du)
         if wp.static(dynamic):
@@ -210,12 +241,13 @@ def make_rod_funcs(dtype, model: str, dynamic: bool):
                 n = n - F
                 m = m - wp.cross(R * r, F)
                 jump = 1
-        ig = b % a.pnode.shape[0]
-        ipf = b % a.pforce.shape[0]
-        for j in range(a.n_points):
-            if a.pnode[ig, j] == node:
-                n = n - vec3(a.pforce[ipf, j, 0], a.pforce[ipf, j, 1], a.pforce[ipf, j, 2])
-                jump = 1
+        if wp.static(features.point_loads):
+            ig = b % a.pnode.shape[0]
+            ipf = b % a.pforce.shape[0]
+            for j in range(a.n_points):
+                if a.pnode[ig, j] == node:
+                    n = n - vec3(a.pforce[ipf, j, 0], a.pforce[ipf, j, 1], a.pforce[ipf, j, 2])
+                    jump = 1
         if wp.static(coupled):
             if jump != 0:
                 n1 = n

@@ -12,17 +12,19 @@ import warp as wp
 
 from .layout import (CONVERGED, KBT, LENGTH, MAX_ITER, NONFINITE, PRECISION_LIMITED, SINGULAR, STALLED, TIP_F,
                      TIP_M)
-from .rod import make_rod_funcs
+from .rod import ALL, Features, make_rod_funcs
 
-INTEGRATORS = ("euler", "rk4")
+INTEGRATORS = ("euler", "midpoint", "rk4")
+STAGES = {"euler": 1, "midpoint": 2, "rk4": 4}
 
 
 @functools.cache
-def make_shooting_kernels(dtype, integrator: str, model: str, dynamic: bool = False):
+def make_shooting_kernels(dtype, integrator: str, model: str, dynamic: bool = False, rod: str = "cosserat",
+                          features: Features = ALL):
     """Shooting and Newton kernels for one precision, integrator, tendon model and physics.
 
     ``dynamic``: one BDF-alpha time step (needs ``RodArgs.dyn``, ``hist``, ``ycur``, ``c0``);
-    otherwise statics (those fields are not read).
+    otherwise statics (those fields are not read). ``rod`` and ``features``: see ``make_rod_funcs``.
 
     Jacobian probes: forward differences in statics (6 probes); central differences in
     dynamics (12 probes), where inertia at small dt amplifies bending along s by up to
@@ -31,12 +33,13 @@ def make_shooting_kernels(dtype, integrator: str, model: str, dynamic: bool = Fa
     """
     if integrator not in INTEGRATORS:
         raise ValueError(f"integrator must be one of {INTEGRATORS}, got {integrator!r}")
-    rf = make_rod_funcs(dtype, model, dynamic)
+    rf = make_rod_funcs(dtype, model, dynamic, rod, features)
     vec3, mat33, RodArgs = rf.vec3, rf.mat33, rf.RodArgs
     vec6 = wp.types.vector(6, dtype)
     mat66 = wp.types.matrix((6, 6), dtype)
     rk4 = integrator == "rk4"
-    stages = 4 if rk4 else 1
+    midpoint = integrator == "midpoint"
+    stages = STAGES[integrator]
     zero = dtype(0.0)
     half = dtype(0.5)
     sixth = dtype(1.0 / 6.0)
@@ -121,6 +124,18 @@ def make_shooting_kernels(dtype, integrator: str, model: str, dynamic: bool = Fa
                 if wp.static(dynamic):
                     q = q + hs * (dq1 + two * (dq2 + dq3) + dq4)
                     w = w + hs * (dw1 + two * (dw2 + dw3) + dw4)
+            elif wp.static(midpoint):
+                hh = half * h
+                dp2, dR2, dn2, dm2, dq2, dw2 = rf.rhs(a, b, s + hh, p + hh * dp1, R + hh * dR1, n + hh * dn1,
+                                                      m + hh * dm1, q + hh * dq1, w + hh * dw1, k, sl + 1,
+                                                      store)
+                p = p + h * dp2
+                R = R + h * dR2
+                n = n + h * dn2
+                m = m + h * dm2
+                if wp.static(dynamic):
+                    q = q + h * dq2
+                    w = w + h * dw2
             else:
                 p = p + h * dp1
                 R = R + h * dR1

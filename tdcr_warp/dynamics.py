@@ -20,7 +20,8 @@ import warp as wp
 from .kernels import layout
 from .kernels.shooting import make_history_kernel
 from .robot import InputError, Robot
-from .shooting import ShootingBatch, check_tensions, host_tables, parallel, rows, split, unknown_scales
+from .shooting import (ShootingBatch, check_tensions, host_tables, parallel, rows, scene_features, split,
+                       unknown_scales)
 from .statics import StaticOptions, StaticSolution, solve_static
 
 __all__ = ["Simulator", "StepResult", "Trajectory", "bdf_alpha_coefficients"]
@@ -116,9 +117,13 @@ class Simulator:
         self.grid = np.broadcast_to(host["grid"], (self.B, host["grid"].shape[1]))
         dyn = robot.pack_dynamics()
         self.chunks = split(self.B, self.dev, self.opts.threads)
+        if self.opts.model == "constant_curvature":
+            raise InputError("dynamics needs a rod model: solver model 'coupled' or 'point'")
+        features = scene_features(robot, self.opts.specialize)
         self.batches = [ShootingBatch(host={k: rows(v, lo, hi) for k, v in host.items()}, tau=tau[lo:hi],
                                       precision=self.opts.precision, integrator=self.opts.integrator,
-                                      model=self.opts.model, device=self.dev, dyn=rows(dyn, lo, hi))
+                                      model=self.opts.model, device=self.dev, dyn=rows(dyn, lo, hi),
+                                      rod=self.opts.rod, features=features)
                         for lo, hi in self.chunks]
         self._advance = make_history_kernel(self.batches[0].wdtype)
         self._yprev = [wp.zeros_like(bt.args.ycur) for bt in self.batches]

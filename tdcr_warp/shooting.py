@@ -14,7 +14,7 @@ import numpy as np
 import warp as wp
 
 from .kernels import layout
-from .kernels.rod import SLOT_WIDTH
+from .kernels.rod import ALL, SLOT_WIDTH, Features
 from .kernels.shooting import make_shooting_kernels
 from .robot import InputError, Robot
 
@@ -134,6 +134,17 @@ def host_tables(robot: Robot, nodes: int) -> dict[str, np.ndarray]:
             "term_node": term_node, "pforce": point_f, "pnode": point_node}
 
 
+def scene_features(robot: Robot, specialize: bool) -> Features:
+    """The physics this batch contains (all of it when ``specialize`` is off)."""
+    if not specialize:
+        return ALL
+    tendon = robot.pack_tendons()
+    return Features(gravity=bool(np.any(robot.gravity != 0) and np.any(robot.density > 0)),
+                    point_loads=len(robot.point_forces) > 0,
+                    helix=bool(np.any(tendon[..., layout.T_A] != 0)),
+                    drag=bool(np.any(robot.drag != 0)))
+
+
 def split(B: int, device, threads: int | None) -> list[tuple[int, int]]:
     """Rod ranges, one per CPU thread (one range on CUDA or for small batches)."""
     n = 1 if device.is_cuda else (threads or os.cpu_count() or 1)
@@ -170,11 +181,11 @@ class ShootingBatch:
     """
 
     def __init__(self, *, host: dict, tau: np.ndarray, precision: str, integrator: str, model: str,
-                 device, dyn: np.ndarray | None = None):
+                 device, dyn: np.ndarray | None = None, rod: str = "cosserat", features: Features = ALL):
         self.dev = device
         self.wdtype, self.ndtype = PRECISIONS[precision]
         self.dynamic = dyn is not None
-        self.kern = make_shooting_kernels(self.wdtype, integrator, model, self.dynamic)
+        self.kern = make_shooting_kernels(self.wdtype, integrator, model, self.dynamic, rod, features)
         k = self.kern
         b = tau.shape[0]
         self.b = b

@@ -15,11 +15,11 @@ import numpy as np
 import warp as wp
 
 from .kernels import layout
-from .kernels.rod import MODELS
+from .kernels.rod import MODELS, RODS
 from .kernels.shooting import INTEGRATORS
 from .robot import InputError, Robot
-from .shooting import (PRECISIONS, ShootingBatch, check_tensions, host_tables, parallel, rows, split,
-                       straight_guess, unknown_scales)
+from .shooting import (PRECISIONS, ShootingBatch, check_tensions, host_tables, parallel, rows, scene_features,
+                       split, straight_guess, unknown_scales)
 
 __all__ = ["StaticOptions", "StaticSolution", "describe_status", "solve_static"]
 
@@ -34,8 +34,15 @@ def describe_status(status: int) -> str:
 class StaticOptions:
     """What selects code and stopping rules (host only).
 
-    nodes: integration intervals along s (N; shapes have N + 1 nodes). integrator: "rk4" or
-    "euler". model: "coupled" (distributed tendon loads) or "point" (termination loads only).
+    nodes: integration intervals along s (N; shapes have N + 1 nodes). integrator: "rk4",
+    "midpoint" or "euler". model: "coupled" (distributed tendon loads), "point" (termination
+    loads only) or "constant_curvature" (closed form: straight tendons ending at the tip, no
+    external load). rod: "cosserat" (shear, extension) or "kirchhoff" (inextensible,
+    unshearable). specialize: compile out the physics the batch does not contain (gravity,
+    point loads, helical routing, drag). error_estimate: also solve with N/2 nodes and report
+    per rod ``tip_error_estimate`` = 2 |tip(N) - tip(N/2)| / (2^p - 1) [m] (p: the integrator's
+    order; a Richardson estimate of the discretisation error with a safety factor 2; it does
+    not measure model error such as Kirchhoff vs Cosserat).
     precision: "float64" or "float32". tol: Newton stops when the scaled residual, expressed
     as a tip-displacement-like error L |r| [m], is below it (None: 1e-10 m in float64,
     1e-6 m in float32). max_iter: Newton iterations per rod. max_step: bound on a Newton
@@ -56,6 +63,9 @@ class StaticOptions:
     max_step: float = 10.0
     jacobian: str = "broyden"
     continuation: int = 8
+    rod: str = "cosserat"
+    specialize: bool = True
+    error_estimate: bool = False
     threads: int | None = None
 
     def __post_init__(self):
@@ -68,7 +78,10 @@ class StaticOptions:
         checks = [
             ("nodes", integer(self.nodes, 1), "a positive integer"),
             ("integrator", self.integrator in INTEGRATORS, f"one of {INTEGRATORS}"),
-            ("model", self.model in MODELS, f"one of {MODELS}"),
+            ("model", self.model in MODELS + ("constant_curvature",), f"one of {MODELS + ('constant_curvature',)}"),
+            ("rod", self.rod in RODS, f"one of {RODS}"),
+            ("specialize", isinstance(self.specialize, bool), "true or false"),
+            ("error_estimate", isinstance(self.error_estimate, bool), "true or false"),
             ("precision", self.precision in PRECISIONS, f"one of {tuple(PRECISIONS)}"),
             ("tol", self.tol is None or positive(self.tol), "a positive number"),
             ("max_iter", integer(self.max_iter, 1), "a positive integer"),
@@ -99,7 +112,8 @@ class StaticSolution:
     converged (B,) bool; status (B,) bit flags (kernels/layout.py); iterations (B,);
     integrations (B,): base-to-tip integrations spent; residual (B,): L |r| [m];
     orthogonality_error (B,): max |R^T R - I| over the nodes; jacobian (B, 6, 6): the last
-    scaled shooting Jacobian (reused by a warm start).
+    scaled shooting Jacobian (reused by a warm start). tip_error_estimate (B,) [m]: with
+    ``error_estimate`` only.
     """
 
     s: np.ndarray
@@ -116,6 +130,7 @@ class StaticSolution:
     orthogonality_error: np.ndarray
     jacobian: np.ndarray
     options: StaticOptions = field(repr=False)
+    tip_error_estimate: np.ndarray | None = None
 
     @property
     def tip_position(self) -> np.ndarray:
@@ -173,6 +188,57 @@ def _continuation(bt: ShootingBatch, host: dict, tau: np.ndarray, x_full: np.nda
     bt.put(bt.n_shoot, sh)
 
 
+def _constant_curvature(robot: Robot, tau: np.ndarray, opts: StaticOptions) -> StaticSolution:
+    """The cheapest rung: closed-form arcs. Straight tendons ending at the tip and no external
+    load give the coupled model's exact solution without shear and extension: a constant
+    curvature u = Kbt^-1 sum_i r_i x (-tau_i e3), compression n = -sum(tau) t."""
+    L = robot.length
+    problems = [name for name, bad in (
+        ("gravity", np.any(robot.gravity != 0)), ("tip_force", np.any(robot.tip_force != 0)),
+        ("tip_moment", np.any(robot.tip_moment != 0)), ("point_forces", bool(robot.point_forces)),
+        ("precurvature", np.any(robot.precurvature != 0)),
+        ("helical tendons", any(np.any(t.helix_radius != 0) for t in robot.tendons)),
+        ("tendons ending before the tip", any(t.length is not None and np.any(t.length < L * (1 - 1e-12))
+                                              for t in robot.tendons)))
+        if bad]
+    if problems:
+        raise InputError(f"solver model 'constant_curvature' needs straight tendons ending at the tip and no "
+                         f"external load; this scene has {', '.join(problems)}")
+    B, N = tau.shape[0], opts.nodes
+    e3 = np.array([0.0, 0.0, 1.0])
+    kbt = np.broadcast_to(robot.section()["kbt"], (B, 3))
+    moment = np.zeros((B, 3))
+    for k, t in enumerate(robot.tendons):
+        off = np.broadcast_to(t.offset, (B, 2))
+        r = np.c_[off, np.zeros(B)]
+        moment += np.cross(r, -tau[:, k:k + 1] * e3)
+    u = moment / kbt
+    kappa = np.linalg.norm(u, axis=1)
+    axis = np.where(kappa[:, None] > 0, u / np.maximum(kappa, 1e-300)[:, None], 0.0)
+    Lb = np.broadcast_to(L, (B,))
+    s = Lb[:, None] * np.linspace(0.0, 1.0, N + 1)[None]
+    A = np.zeros((B, 3, 3))
+    A[:, 0, 1], A[:, 0, 2], A[:, 1, 2] = -axis[:, 2], axis[:, 1], -axis[:, 0]
+    A = A - np.transpose(A, (0, 2, 1))
+    ks = kappa[:, None] * s
+    eye = np.eye(3)[None, None]
+    R = eye + np.sin(ks)[..., None, None] * A[:, None] + (1 - np.cos(ks))[..., None, None] * (A @ A)[:, None]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        c1 = np.where(kappa[:, None] > 0, (1 - np.cos(ks)) / kappa[:, None], 0.0)
+        c2 = np.where(kappa[:, None] > 0, s - np.sin(ks) / kappa[:, None], 0.0)
+    p = (s[..., None] * e3 + c1[..., None] * (A @ e3)[:, None] + c2[..., None] * (A @ A @ e3)[:, None])
+    total = tau.sum(axis=1)
+    n = -total[:, None, None] * (R @ e3)
+    m = np.einsum("bsij,bj->bsi", R, kbt * u)
+    status = np.full(B, layout.CONVERGED, dtype=np.int32)
+    zeros = np.zeros(B)
+    return StaticSolution(s=s, positions=p, rotations=R, n=n, m=m, base_wrench=np.c_[n[:, 0], m[:, 0]],
+                          converged=np.ones(B, bool), status=status, iterations=zeros.astype(np.int32),
+                          integrations=zeros.astype(np.int32), residual=zeros, orthogonality_error=zeros,
+                          jacobian=np.zeros((B, 6, 6)), options=opts,
+                          tip_error_estimate=zeros if opts.error_estimate else None)
+
+
 def solve_static(robot: Robot, tensions, *, options: StaticOptions | None = None,
                  device: str | None = None, initial: StaticSolution | None = None,
                  **overrides) -> StaticSolution:
@@ -185,6 +251,8 @@ def solve_static(robot: Robot, tensions, *, options: StaticOptions | None = None
     """
     opts = replace(options or StaticOptions(), **overrides)
     tau = check_tensions(robot, tensions)
+    if opts.model == "constant_curvature":
+        return _constant_curvature(robot, tau, opts)
     B = tau.shape[0]
     dev = wp.get_device(device)
     host = host_tables(robot, opts.nodes)
@@ -198,9 +266,10 @@ def solve_static(robot: Robot, tensions, *, options: StaticOptions | None = None
         x0 = straight_guess(robot, tau) * scales
         J0 = None
     chunks = split(B, dev, opts.threads)
+    features = scene_features(robot, opts.specialize)
     batches = [ShootingBatch(host={k: rows(v, lo, hi) for k, v in host.items()}, tau=tau[lo:hi],
                              precision=opts.precision, integrator=opts.integrator, model=opts.model,
-                             device=dev) for lo, hi in chunks]
+                             device=dev, rod=opts.rod, features=features) for lo, hi in chunks]
 
     def run(i):
         lo, hi = chunks[i]
@@ -230,7 +299,14 @@ def solve_static(robot: Robot, tensions, *, options: StaticOptions | None = None
     out["base_wrench"] = out.pop("x") / scales
     grid = host["grid"]
     s = np.broadcast_to(grid, (B, grid.shape[1])).astype(np.float64)
-    return StaticSolution(s=s, options=opts, **out)
+    sol = StaticSolution(s=s, options=opts, **out)
+    if opts.error_estimate:
+        coarse = solve_static(robot, tau, options=replace(opts, nodes=max(1, opts.nodes // 2), error_estimate=False),
+                              device=device, initial=sol)
+        order = {"euler": 1, "midpoint": 2, "rk4": 4}[opts.integrator]
+        est = 2.0 * np.linalg.norm(sol.tip_position - coarse.tip_position, axis=1) / (2**order - 1)
+        sol.tip_error_estimate = np.where(coarse.converged, est, np.inf)
+    return sol
 
 
 
