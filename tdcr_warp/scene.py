@@ -5,7 +5,8 @@ Tables and keys (SI units; see README "Scene format"):
   [[tendons]]  offset, routing ("straight" | "helix"), radius, turns, phase, length
   [loads]      gravity, tip_force, tip_moment, [[loads.point_forces]] (s, force)
   [actuation]  tensions (B rows of K), [[actuation.steps]] (start, tensions) for dynamics
-  [solver]     nodes, integrator, model, precision, tol, max_iter, max_step, jacobian, threads
+  [solver]     preset, nodes, integrator, model, rod, precision, tol, max_iter, max_step, jacobian,
+               continuation, specialize, error_estimate, threads
   [dynamics]   dt, alpha, steps, damping_shear, damping_bending, drag, shapes_every
   [control]    target (or target_tensions: the static tip there), method, input_model, gain_c,
                gain_k, epsilon, phi, tension_max, model_every (see tdcr_warp.control)
@@ -36,7 +37,7 @@ STEP_KEYS = {"start", "tensions"}
 DYNAMICS_KEYS = {"dt", "alpha", "steps", "damping_shear", "damping_bending", "drag", "shapes_every"}
 CONTROL_KEYS = {"target", "target_tensions", "method", "input_model", "gain_c", "gain_k", "epsilon", "phi",
                 "tension_max", "model_every"}
-SOLVER_KEYS = {f.name for f in fields(StaticOptions)}
+SOLVER_KEYS = {f.name for f in fields(StaticOptions)} | {"preset"}
 TABLES = {"robot", "tendons", "loads", "actuation", "solver", "dynamics", "control", "sweep", "uncertainty"}
 
 
@@ -176,8 +177,9 @@ def scene_from_dict(data: dict) -> Scene:
     if robot.batch_size > 1 and tensions.shape[0] != robot.batch_size:
         raise InputError(f"[actuation].tensions: {tensions.shape[0]} rows for {robot.batch_size} rods")
 
-    solver = _table(data, "solver", SOLVER_KEYS)
-    options = StaticOptions(**solver)
+    solver = dict(_table(data, "solver", SOLVER_KEYS))
+    preset = solver.pop("preset", None)
+    options = StaticOptions.preset(preset, **solver) if preset is not None else StaticOptions(**solver)
 
     dynamics = None
     if dyn:

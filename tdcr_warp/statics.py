@@ -24,6 +24,13 @@ from .shooting import (PRECISIONS, ShootingBatch, check_tensions, host_tables, p
 __all__ = ["StaticOptions", "StaticSolution", "describe_status", "solve_static"]
 
 
+PRESETS = {
+    "fast": dict(integrator="rk4", nodes=10, rod="kirchhoff"),
+    "balanced": dict(integrator="rk4", nodes=20, rod="cosserat"),
+    "accurate": dict(integrator="rk4", nodes=50, rod="cosserat", tol=1e-12),
+}
+
+
 def describe_status(status: int) -> str:
     """The status bits of one rod in words."""
     names = [v for k, v in layout.STATUS_NAMES.items() if int(status) & k]
@@ -93,6 +100,14 @@ class StaticOptions:
         for name, ok, what in checks:
             if not ok:
                 raise InputError(f"solver {name} must be {what}, got {getattr(self, name)!r}")
+
+    @classmethod
+    def preset(cls, name: str, **overrides) -> "StaticOptions":
+        """Named settings chosen from experiments/speed_accuracy.py (see README for the
+        measured tip errors): "fast", "balanced" (the defaults at N = 20) or "accurate"."""
+        if name not in PRESETS:
+            raise InputError(f"solver preset must be one of {tuple(PRESETS)}, got {name!r}")
+        return cls(**(PRESETS[name] | overrides))
 
     @property
     def tolerance(self) -> float:

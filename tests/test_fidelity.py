@@ -104,3 +104,28 @@ def test_constant_curvature_refuses_scenes_it_cannot_model():
     rob = tw.Robot(**BASE, tendons=[X], gravity=(0, 0, -9.81))
     with pytest.raises(tw.InputError, match="constant_curvature.*gravity"):
         tw.solve_static(rob, [[1.0]], model="constant_curvature")
+
+
+def test_presets_and_scene_key(tmp_path):
+    from tdcr_warp.scene import load_scene
+    assert tw.StaticOptions.preset("fast").rod == "kirchhoff"
+    assert tw.StaticOptions.preset("accurate", nodes=64).nodes == 64
+    with pytest.raises(tw.InputError, match="preset"):
+        tw.StaticOptions.preset("fastest")
+    scene = tmp_path / "s.toml"
+    scene.write_text("""[robot]
+length = 0.5
+youngs_modulus = 190e9
+poisson_ratio = 0.3
+radius = 0.001
+density = 7800
+[[tendons]]
+offset = [0.01, 0.0]
+[actuation]
+tensions = [[1.0]]
+[solver]
+preset = "fast"
+precision = "float32"
+""")
+    opts = load_scene(scene).options
+    assert (opts.nodes, opts.rod, opts.precision) == (10, "kirchhoff", "float32")
