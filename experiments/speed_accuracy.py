@@ -42,7 +42,7 @@ def scenes():
 
 
 def static_settings(smoke: bool):
-    out = [dict(integrator="rk4", nodes=n) for n in ((5, 10) if smoke else (5, 10, 20, 40))]
+    out = [dict(integrator="rk4", nodes=n) for n in ((5, 10) if smoke else (5, 10, 20, 40, 50))]
     if not smoke:
         out += [dict(integrator="midpoint", nodes=n) for n in (5, 10, 20, 40, 80)]
         out += [dict(integrator="euler", nodes=n) for n in (20, 40, 80, 160)]
@@ -114,6 +114,29 @@ def run_dynamic(B: int, smoke: bool) -> list[dict]:
     return rows
 
 
+BUDGETS = (1e-3, 1e-5, 1e-7, 1e-9)
+ACCURATE = "integrator=rk4, nodes=50"
+
+
+def pick_table(rows: list[dict]) -> list[dict]:
+    """Per scene and tip-error budget [m]: the fastest setting within it, and its speed-up over
+    the "accurate" preset (RK4, N = 50) on the same scene."""
+    out = []
+    for name in dict.fromkeys(r["scene"] for r in rows):
+        pts = [r for r in rows if r["scene"] == name and r.get("applicable") and r.get("converged")]
+        cost = lambda r: r.get("us_per_rod", r.get("us_per_rod_step"))  # noqa: E731
+        acc = next((cost(r) for r in pts if r["setting"] == ACCURATE), None)
+        for budget in BUDGETS:
+            ok = [r for r in pts if r["tip_error_m"] <= budget]
+            if ok:
+                best = min(ok, key=cost)
+                out.append(dict(scene=name, budget_m=budget, setting=best["setting"], tip_error_m=best["tip_error_m"],
+                                cost_us=cost(best), speedup_vs_accurate=(acc / cost(best)) if acc else None))
+            else:
+                out.append(dict(scene=name, budget_m=budget, setting=None))
+    return out
+
+
 def plot(rows: list[dict], path: Path) -> None:
     import matplotlib
     matplotlib.use("Agg")
@@ -148,7 +171,12 @@ def main(argv=None) -> int:
         fig = ROOT / "docs" / "figures" / "speed_accuracy.png"
         fig.parent.mkdir(parents=True, exist_ok=True)
         plot(rows, fig)
-    write_report(args.out, {"meta": metadata(args.device), "rows": rows})
+    table = pick_table(rows)
+    for t in table:
+        if t["setting"]:
+            sp = f"{t['speedup_vs_accurate']:.1f}x" if t["speedup_vs_accurate"] else "-"
+            print(f"{t['scene']:26s} budget {t['budget_m']:.0e} m: {t['setting']:45s} {t['cost_us']:8.1f} us, {sp}")
+    write_report(args.out, {"meta": metadata(args.device), "rows": rows, "table": table})
     return 0
 
 
