@@ -2,7 +2,7 @@
 
 import warp as _wp
 
-_wp.config.quiet = True
+_wp.config.log_level = max(_wp.config.log_level, _wp.LOG_WARNING)  # no banner or module-load lines
 
 from .robot import InputError, PointForce, Robot, Tendon  # noqa: E402
 from .statics import StaticOptions, StaticSolution, solve_static  # noqa: E402

@@ -17,6 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .kernels.rod import MODELS
+from .kernels.shooting import INTEGRATORS
 from .robot import InputError
 
 
@@ -32,6 +34,24 @@ def _write_atomic(path: Path, write) -> None:
             os.remove(tmp)
 
 
+def _write_npz(path: Path, save) -> None:
+    """``save(file)`` writes an .npz into an open binary file (np.savez would rename a path)."""
+    def write(tmp):
+        with open(tmp, "wb") as f:
+            save(f)
+    _write_atomic(path, write)
+
+
+def _out_dir(args, default: Path) -> Path:
+    """The output directory (created); an unusable one is an InputError naming --out."""
+    out = Path(args.out) if args.out else default
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise InputError(f"--out {str(out)!r}: cannot create the output directory: {e.strerror or e}") from None
+    return out
+
+
 def _write_json(path: Path, obj) -> None:
     def write(tmp):
         with open(tmp, "w") as f:
@@ -40,9 +60,14 @@ def _write_json(path: Path, obj) -> None:
 
 
 def _settings(scene, args, device) -> dict:
+    """The StaticOptions fields, the device actually used and the Warp version."""
     import warp as wp
     out = asdict(scene.options)
-    out.update(device=str(device), warp=wp.__version__, tolerance_m=scene.options.tolerance)
+    try:
+        dev = str(wp.get_device(None if device in (None, "default") else device))
+    except (RuntimeError, ValueError):
+        dev = str(device)
+    out.update(device=dev, warp=wp.__version__, warp_version=wp.__version__, tolerance_m=scene.options.tolerance)
     return out
 
 
@@ -68,8 +93,7 @@ def cmd_static(args) -> int:
     from .statics import solve_static
 
     scene = _apply_overrides(load_scene(args.scene), args)
-    out = Path(args.out or Path("out") / Path(args.scene).stem)
-    out.mkdir(parents=True, exist_ok=True)
+    out = _out_dir(args, Path("out") / Path(args.scene).stem)
     t0 = time.perf_counter()
     sol = solve_static(scene.robot, scene.tensions, options=scene.options, device=args.device)
     wall = time.perf_counter() - t0
@@ -78,7 +102,7 @@ def cmd_static(args) -> int:
     print(f"solved {B} rod(s) in {wall:.3f} s ({scene.options.integrator}, N = {scene.options.nodes}, "
           f"{scene.options.model}, {scene.options.precision})")
     _print_rods(sol.tip_position, sol.converged, sol.iterations, sol.residual, reasons)
-    _write_atomic(out / "shapes.npz", lambda tmp: sol.to_npz(open(tmp, "wb")))
+    _write_npz(out / "shapes.npz", sol.to_npz)
     plot_shapes(sol.positions, sol.converged, out / "shapes.png")
     results = {
         "scene": str(args.scene), "settings": _settings(scene, args, args.device or "default"),
@@ -94,7 +118,9 @@ def cmd_static(args) -> int:
     print(f"wrote {out}/results.json, shapes.npz, shapes.png")
     failed = int((~sol.converged).sum())
     if failed:
-        print(f"{failed} of {B} rods did not converge (reasons in results.json)", file=sys.stderr)
+        why = ", ".join(f"{n} x {reason}" for reason, n in _failure_counts(sol.status, sol.converged).items())
+        print(f"tdcr-warp: {failed} of {B} rods did not converge: {why} (per rod in results.json)",
+              file=sys.stderr)
         return 1
     return 0
 
@@ -111,8 +137,7 @@ def cmd_simulate(args) -> int:
     steps = args.steps or spec.steps
     if steps > spec.steps:
         raise InputError(f"--steps {steps} exceeds the scene's [dynamics].steps = {spec.steps}")
-    out = Path(args.out or Path("out") / Path(args.scene).stem)
-    out.mkdir(parents=True, exist_ok=True)
+    out = _out_dir(args, Path("out") / Path(args.scene).stem)
     t0 = time.perf_counter()
     sim = Simulator(scene.robot, scene.tensions, dt=spec.dt, alpha=spec.alpha, options=scene.options,
                     device=args.device)
@@ -125,7 +150,7 @@ def cmd_simulate(args) -> int:
           f"({B * steps / wall:,.0f} rod-steps/s, real-time factor {steps * spec.dt / wall:.2f} per batch)")
     reasons = ["ok" if f < 0 else f"failed at step {f + 1}" for f in traj.failed_step]
     _print_rods(traj.tip_position[-1], ok, traj.iterations.max(axis=0), traj.residual[-1], reasons)
-    _write_atomic(out / "trajectory.npz", lambda tmp: traj.to_npz(open(tmp, "wb")))
+    _write_npz(out / "trajectory.npz", traj.to_npz)
     plot_tip_history(traj.time, traj.tip_position, traj.tip_velocity, traj.tip_acceleration, out)
     results = {
         "scene": str(args.scene), "settings": _settings(scene, args, args.device or "default")
@@ -155,8 +180,7 @@ def cmd_control(args) -> int:
     if spec is None or ctl is None:
         raise InputError(f"{args.scene}: control needs [dynamics] and [control] tables")
     steps = args.steps or spec.steps
-    out = Path(args.out or Path("out") / Path(args.scene).stem)
-    out.mkdir(parents=True, exist_ok=True)
+    out = _out_dir(args, Path("out") / Path(args.scene).stem)
     t0 = time.perf_counter()
     if "target_tensions" in ctl:
         target = static_target(scene.robot, ctl["target_tensions"], options=scene.options, device=args.device)
@@ -177,7 +201,7 @@ def cmd_control(args) -> int:
         print(f"  rod {b}: final error {metrics['final_error'][b] * 1e3:.3f} mm, settling "
               f"{metrics['settling_time'][b]:.3f} s, chatter {metrics['chatter'][b]:.2e} N, "
               f"mean tension {np.round(metrics['mean_tension'][b], 3).tolist()} N")
-    _write_atomic(out / "control.npz", lambda tmp: run.to_npz(open(tmp, "wb")))
+    _write_npz(out / "control.npz", run.to_npz)
     plot_control(run, out)
     results = {
         "scene": str(args.scene), "settings": _settings(scene, args, args.device or "default")
@@ -207,8 +231,13 @@ def _failure_counts(status: np.ndarray, ok: np.ndarray) -> dict[str, int]:
 
 def cmd_sweep(args) -> int:
     """montecarlo, workspace and gain-grid: a [sweep] over the scene, run in chunks."""
-    from .jobs import (control_job, static_job, summarize_gain_grid, summarize_montecarlo,
-                       summarize_workspace)
+    from .jobs import (
+        control_job,
+        static_job,
+        summarize_gain_grid,
+        summarize_montecarlo,
+        summarize_workspace,
+    )
     from .scene import load_scene
     from .statics import solve_static
     from .sweep import SweepSpec, peak_memory_mb, run_sweep
@@ -283,8 +312,8 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--out", help="output directory (default: out/<scene name>)")
         p.add_argument("--device", default=None, help="cpu or cuda:0 (default: Warp's default device)")
         p.add_argument("--nodes", type=int, help="override [solver].nodes")
-        p.add_argument("--integrator", choices=["rk4", "euler"], help="override [solver].integrator")
-        p.add_argument("--model", choices=["coupled", "point"], help="override [solver].model")
+        p.add_argument("--integrator", choices=list(INTEGRATORS), help="override [solver].integrator")
+        p.add_argument("--model", choices=[*MODELS, "constant_curvature"], help="override [solver].model")
         p.add_argument("--precision", choices=["float64", "float32"], help="override [solver].precision")
         if name in ("simulate", "control"):
             p.add_argument("--steps", type=int, help="run only the first STEPS steps")
@@ -298,6 +327,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
+    """Run the command line; returns the exit status (0 ok, 1 some rods failed, 2 bad input).
+    A malformed command line (argparse) raises SystemExit(2) after printing the usage."""
     args = build_parser().parse_args(argv)
     try:
         if args.device is not None:

@@ -55,6 +55,10 @@ class DynamicsSpec:
 
 @dataclass(frozen=True)
 class Scene:
+    """A loaded scene. robot: the batch of B rods; tensions: (B, K) [N]; options: the
+    [solver] table; dynamics: the [dynamics] table (None without one); source: the parsed
+    TOML as a dict; control: the [control] table (None without one)."""
+
     robot: Robot
     tensions: np.ndarray
     options: StaticOptions
@@ -64,6 +68,7 @@ class Scene:
 
 
 def load_scene(path) -> Scene:
+    """Read and validate a TOML scene; every problem is an :class:`InputError`."""
     path = Path(path)
     try:
         text = path.read_text()
@@ -117,7 +122,18 @@ def _integer(value, where: str) -> int:
     return value
 
 
+def _build(kind, kw: dict, where: str):
+    """kind(**kw), with the table's location in front of any InputError."""
+    try:
+        return kind(**kw)
+    except InputError as e:
+        raise InputError(f"{where}: {e}") from None
+
+
 def scene_from_dict(data: dict) -> Scene:
+    """Validate a parsed scene (the dict tomllib returns) and build its :class:`Scene`."""
+    if not isinstance(data, dict):
+        raise InputError(f"a scene must be a table, got {type(data).__name__}")
     _no_unknown(data, TABLES, "the scene")
     rob = _table(data, "robot", ROBOT_KEYS, required=True)
     robot_kw = {k: _required(rob, k, "[robot]") for k in ("length", "youngs_modulus", "poisson_ratio",
@@ -152,19 +168,23 @@ def scene_from_dict(data: dict) -> Scene:
                     raise InputError(f"{where}.{key} is only for routing = \"helix\"")
         if "length" in t:
             kw["length"] = _numbers(t["length"], f"{where}.length")
-        tendons.append(Tendon(**kw))
+        tendons.append(_build(Tendon, kw, where))
 
     loads = _table(data, "loads", LOAD_KEYS)
     for key in ("gravity", "tip_force", "tip_moment"):
         if key in loads:
             robot_kw[key] = _numbers(loads[key], f"[loads].{key}")
     points = []
-    for j, pf in enumerate(loads.get("point_forces", [])):
+    raw_points = loads.get("point_forces", [])
+    if not isinstance(raw_points, list):
+        raise InputError("[[loads.point_forces]] must be an array of tables (write [[loads.point_forces]])")
+    for j, pf in enumerate(raw_points):
         where = f"[[loads.point_forces]] #{j + 1}"
         if not isinstance(pf, dict):
             raise InputError(f"{where} must be a table, got {pf!r}")
         _no_unknown(pf, POINT_KEYS, where)
-        points.append(PointForce(s=_required(pf, "s", where), force=_required(pf, "force", where)))
+        points.append(_build(PointForce, dict(s=_required(pf, "s", where), force=_required(pf, "force", where)),
+                             where))
 
     dyn = _table(data, "dynamics", DYNAMICS_KEYS)
     for key in ("damping_shear", "damping_bending", "drag"):
@@ -179,6 +199,8 @@ def scene_from_dict(data: dict) -> Scene:
 
     solver = dict(_table(data, "solver", SOLVER_KEYS))
     preset = solver.pop("preset", None)
+    if preset is not None and not isinstance(preset, str):
+        raise InputError(f"[solver].preset must be a string, got {preset!r}")
     options = StaticOptions.preset(preset, **solver) if preset is not None else StaticOptions(**solver)
 
     dynamics = None

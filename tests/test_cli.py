@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import warp as wp
 
 import tdcr_warp as tw
 from tdcr_warp.cli import main
@@ -45,15 +46,34 @@ def test_static_example_outputs_agree_with_api(tmp_path, capsys):
     out = tmp_path / "out"
     assert main(["static", str(EXAMPLES / "seed_robot.toml"), "--out", str(out)]) == 0
     res = json.loads((out / "results.json").read_text())
+    assert {"scene", "settings", "batch_size", "rods", "tip_position", "converged", "iterations",
+            "residual"} <= res.keys()
+    assert res["scene"] == str(EXAMPLES / "seed_robot.toml")
+    settings = res["settings"]
+    for key in ("nodes", "integrator", "model", "precision", "tol", "max_iter", "device", "warp_version"):
+        assert key in settings, key
+    assert (settings["nodes"], settings["integrator"], settings["model"]) == (50, "rk4", "coupled")
+    assert settings["device"] == str(wp.get_device(None))
     assert res["batch_size"] == 1 and res["converged"] == [True]
-    assert res["rods"][0]["status"] == "converged"
+    assert np.shape(res["tip_position"]) == (1, 3) and len(res["iterations"]) == len(res["residual"]) == 1
+    rod = res["rods"][0]
+    assert rod.keys() == {"tip_position", "tip_rotation", "converged", "status", "iterations", "residual",
+                          "orthogonality_error"}
+    assert np.shape(rod["tip_position"]) == (3,) and np.shape(rod["tip_rotation"]) == (3, 3)
+    assert rod["status"] == "converged" and rod["converged"] is True
     assert (out / "shapes.png").stat().st_size > 1000
+    assert sorted(p.name for p in out.iterdir()) == ["results.json", "shapes.npz", "shapes.png"]  # no temp files
     shapes = np.load(out / "shapes.npz")
     assert shapes["positions"].shape == (1, 51, 3)
     scene = load_scene(EXAMPLES / "seed_robot.toml")
     sol = tw.solve_static(scene.robot, scene.tensions, options=scene.options)
     assert np.abs(np.array(res["tip_position"]) - sol.tip_position).max() < 1e-15
-    assert "rod 0: tip" in capsys.readouterr().out
+    assert np.abs(np.array(rod["tip_rotation"]) - sol.tip_rotation[0]).max() < 1e-15
+    assert np.abs(shapes["positions"] - sol.positions).max() < 1e-15
+    assert res["iterations"] == sol.iterations.tolist() and res["residual"] == sol.residual.tolist()
+    assert rod["orthogonality_error"] == float(sol.orthogonality_error[0])
+    printed = capsys.readouterr().out
+    assert "rod 0: tip" in printed and " s " in printed  # per-rod summary and the wall time
 
 
 def test_per_rod_lists_match_rods_alone(tmp_path):
@@ -88,12 +108,16 @@ def test_simulate_seed_dynamics(tmp_path):
         assert (tmp_path / name).stat().st_size > 1000
 
 
-def test_nonconverged_rod_exits_1_with_reason(tmp_path):
+def test_nonconverged_rod_exits_1_with_reason(tmp_path, capsys):
     scene = write(tmp_path, BASE + "max_iter = 1\n")
     assert main(["static", str(scene), "--out", str(tmp_path / "o")]) == 1
     res = json.loads((tmp_path / "o" / "results.json").read_text())
     assert res["converged"] == [False]
+    assert res["rods"][0]["converged"] is False
     assert res["rods"][0]["status"] == "iteration cap reached"
+    assert (tmp_path / "o" / "shapes.npz").exists() and (tmp_path / "o" / "shapes.png").exists()
+    err = capsys.readouterr().err
+    assert "1 of 1 rods did not converge" in err and "iteration cap reached" in err, err
 
 
 @pytest.mark.parametrize("edit,message", [
@@ -118,11 +142,40 @@ def test_bad_scene_exits_2_naming_field_and_value(tmp_path, capsys, edit, messag
     assert not (tmp_path / "o" / "results.json").exists()
 
 
-def test_missing_file_and_subprocess_exit_status(tmp_path):
+def test_default_out_dir_and_overrides(tmp_path, monkeypatch):
+    scene = write(tmp_path, BASE, "my_scene.toml")
+    monkeypatch.chdir(tmp_path)
+    assert main(["static", str(scene), "--nodes", "12", "--integrator", "euler", "--model", "point",
+                 "--precision", "float32", "--device", "cpu"]) == 0
+    out = tmp_path / "out" / "my_scene"
+    for name in ("results.json", "shapes.npz", "shapes.png"):
+        assert (out / name).exists(), name
+    settings = json.loads((out / "results.json").read_text())["settings"]
+    assert (settings["nodes"], settings["integrator"], settings["model"], settings["precision"],
+            settings["device"]) == (12, "euler", "point", "float32", "cpu")
+    assert np.load(out / "shapes.npz")["positions"].shape == (1, 13, 3)
+
+
+def test_bad_flags_and_out_dir(tmp_path, capsys):
+    scene = write(tmp_path, BASE)
+    with pytest.raises(SystemExit) as e:  # argparse's own usage error
+        main(["static", str(scene), "--integrator", "rk5"])
+    assert e.value.code == 2 and "invalid choice: 'rk5'" in capsys.readouterr().err
+    assert main(["static", str(scene), "--nodes", "0", "--out", str(tmp_path / "o")]) == 2
+    assert "solver nodes must be a positive integer, got 0" in capsys.readouterr().err
+    blocker = write(tmp_path, "not a directory", "file")
+    assert main(["static", str(scene), "--out", str(blocker / "o")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("tdcr-warp: error: --out") and "Traceback" not in err, err
+
+
+def test_missing_file_and_subprocess_exit_status(tmp_path, capsys):
     assert main(["static", str(tmp_path / "nope.toml")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("tdcr-warp: error: cannot read scene") and "nope.toml" in err, err
     bad = write(tmp_path, BASE.replace("radius = 0.001", "radius = 0.0"))
     proc = subprocess.run([sys.executable, "-m", "tdcr_warp", "static", str(bad), "--out", str(tmp_path / "o")],
-                          capture_output=True, text=True)
+                          capture_output=True, text=True, check=False)
     assert proc.returncode == 2
     assert "radius must be positive, got 0.0" in proc.stderr
     assert "Traceback" not in proc.stderr

@@ -1,0 +1,173 @@
+"""TOML scenes: the examples, per-rod values, and errors that name the table, key and value."""
+
+import copy
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import tdcr_warp as tw
+from tdcr_warp.scene import Scene, load_scene, scene_from_dict
+
+EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+
+BASE = {
+    "robot": {"length": 0.5, "youngs_modulus": 190e9, "poisson_ratio": 0.3, "radius": 0.001, "density": 7800},
+    "tendons": [{"offset": [0.01, 0.0]}, {"offset": [0.0, 0.01]}],
+    "loads": {"gravity": [0.0, 0.0, -9.81]},
+    "actuation": {"tensions": [[2.0, 0.5]]},
+    "solver": {"nodes": 20},
+}
+
+
+def _set(d: dict, path: str, value) -> None:
+    """d[table][key] = value for path "table__key" ("tendons__1__length": the 2nd tendon's
+    length); value None deletes the key."""
+    *tables, key = path.split("__")
+    for name in tables:
+        d = d[int(name)] if name.isdigit() else d.setdefault(name, {})
+    if value is None:
+        del d[key]
+    else:
+        d[key] = value
+
+
+def scene(**edits) -> dict:
+    """BASE with edits such as ``robot__length=-1``."""
+    d = copy.deepcopy(BASE)
+    for path, value in edits.items():
+        _set(d, path, value)
+    return d
+
+
+def test_seed_example_is_the_reports_robot():
+    sc = load_scene(EXAMPLES / "seed_robot.toml")
+    assert isinstance(sc, Scene)
+    r = sc.robot
+    assert r.batch_size == 1 and r.n_tendons == 4
+    assert (r.length[0], r.youngs_modulus[0], r.poisson_ratio[0], r.radius[0], r.density[0]) == \
+        (0.5, 190e9, 0.3, 0.001, 17189.0)
+    offsets = [t.offset[0].tolist() for t in r.tendons]
+    assert offsets == [[0.01, 0.0], [0.0, 0.01], [-0.01, 0.0], [0.0, -0.01]]
+    assert r.gravity[0].tolist() == [0.0, 0.0, -9.81]
+    assert sc.tensions.tolist() == [[3.0, 0.0, 0.0, 0.0]]
+    assert (sc.options.nodes, sc.options.integrator, sc.options.model) == (50, "rk4", "coupled")
+    assert sc.source["robot"]["length"] == 0.5
+
+
+def test_two_section_example_maps_tendons_and_loads():
+    sc = load_scene(EXAMPLES / "helix_two_sections.toml")
+    r = sc.robot
+    assert sc.tensions.shape == (3, 5) and r.batch_size == 3
+    assert np.allclose(r.tendon_lengths()[0], [0.25, 0.25, 0.5, 0.5, 0.5])
+    helix = r.tendons[4]
+    assert helix.routing == "helix" and helix.helix_radius[0] == 0.01 and helix.turns[0] == 0.5
+    assert len(r.point_forces) == 1 and r.point_forces[0].s[0] == 0.4
+    sol = tw.solve_static(r, sc.tensions, options=sc.options, device="cpu")
+    assert sol.converged.all(), sol.failure_reasons()
+    assert len({tuple(np.round(t, 9)) for t in sol.tip_position}) == 3  # three different rods
+
+
+def test_per_rod_lists_equal_each_rod_alone():
+    """Scalars, vectors and tendon fields given per rod in one scene == each rod's own scene."""
+    per_rod = dict(robot__length=[0.5, 0.4, 0.45], robot__radius=[0.001, 0.0012, 0.001],
+                   robot__precurvature=[[0.0, 0.0, 0.0], [0.5, 0.0, 0.0], [0.0, -0.3, 0.0]],
+                   loads__gravity=[[0.0, 0.0, -9.81], [0.0, -9.81, 0.0], [0.0, 0.0, 0.0]],
+                   loads__tip_force=[[0.0, 0.0, 0.0], [0.01, 0.0, 0.0], [0.0, 0.0, -0.05]],
+                   tendons__0__offset=[[0.01, 0.0], [0.008, 0.002], [0.01, 0.0]],
+                   tendons__1__length=[0.3, 0.4, 0.45],
+                   actuation__tensions=[[2.0, 0.5], [0.0, 1.0], [1.0, 1.0]])
+    batch_scene = scene_from_dict(scene(**per_rod))
+    batch = tw.solve_static(batch_scene.robot, batch_scene.tensions, options=batch_scene.options, device="cpu")
+    assert batch.converged.all()
+    for b in range(3):
+        one = {path: [v[b]] if path == "actuation__tensions" else v[b] for path, v in per_rod.items()}
+        sc = scene_from_dict(scene(**one))
+        assert sc.robot.batch_size == 1
+        alone = tw.solve_static(sc.robot, sc.tensions, options=sc.options, device="cpu")
+        err = np.abs(alone.positions[0] - batch.positions[b]).max()
+        assert err < 1e-12, f"rod {b}: batch and alone differ by {err:.2e} m"
+
+
+def test_shared_tension_row_is_tiled_over_per_rod_robot():
+    sc = scene_from_dict(scene(robot__youngs_modulus=[190e9, 100e9]))
+    assert sc.tensions.tolist() == [[2.0, 0.5], [2.0, 0.5]]
+
+
+def test_helix_radius_key_and_optional_fields():
+    sc = scene_from_dict(scene(tendons=[{"routing": "helix", "radius": 0.01, "turns": 0.5, "phase": 0.2,
+                                         "length": 0.25, "offset": [0.001, 0.0]}],
+                               actuation__tensions=[[1.0]]))
+    t = sc.robot.tendons[0]
+    assert (t.helix_radius[0], t.turns[0], t.phase[0], t.length[0]) == (0.01, 0.5, 0.2, 0.25)
+    assert t.offset[0].tolist() == [0.001, 0.0]
+    sc = scene_from_dict({k: v for k, v in scene().items() if k not in ("loads", "solver")})
+    assert sc.options == tw.StaticOptions() and not sc.robot.gravity.any()
+
+
+@pytest.mark.parametrize("edits,message", [
+    (dict(robot__length=None), "missing key 'length' in [robot]"),
+    (dict(robot__density=None), "missing key 'density' in [robot]"),
+    (dict(actuation__tensions=None), "missing key 'tensions' in [actuation]"),
+    (dict(robot__length=-1), "length must be positive, got -1.0"),
+    (dict(robot__length=[0.5, -0.2]), "length must be positive, got -0.2 (rod 1)"),
+    (dict(robot__poisson_ratio=0.7), "poisson_ratio must be in (-1, 0.5), got 0.7"),
+    (dict(robot__radius="thin"), "[robot].radius: expected a number or a list of numbers, got 'thin'"),
+    (dict(robot__radius=True), "[robot].radius: expected a number or a list of numbers, got True"),
+    (dict(robot__youngs_modulus=[190e9, "x"]), "[robot].youngs_modulus: expected a number or a list of numbers"),
+    (dict(robot__precurvature=[1.0, 2.0]), "precurvature: expected (3,) or (B, 3), got shape (2,)"),
+    (dict(robot__lenght=0.5), "unknown key 'lenght' in [robot]"),
+    (dict(loads__gravity="down"), "[loads].gravity: expected a number or a list of numbers, got 'down'"),
+    (dict(loads__wind=[1.0, 0.0, 0.0]), "unknown key 'wind' in [loads]"),
+    (dict(loads__point_forces=[{"s": 0.7, "force": [0.0, 0.0, 1.0]}]),
+     "point_forces[0].s must be <= the rod length, got 0.7"),
+    (dict(loads__point_forces=[{"s": -0.1, "force": [0.0, 0.0, 1.0]}]),
+     "[[loads.point_forces]] #1: point force s must be positive, got -0.1"),
+    (dict(loads__point_forces=[{"force": [0.0, 0.0, 1.0]}]), "missing key 's' in [[loads.point_forces]] #1"),
+    (dict(loads__point_forces={"s": 0.2, "force": [0.0, 0.0, 1.0]}), "must be an array of tables"),
+    (dict(tendons__1__offset="far"), "[[tendons]] #2.offset: expected a number or a list of numbers, got 'far'"),
+    (dict(tendons__1__length=-0.1), "[[tendons]] #2: tendon length must be positive, got -0.1"),
+    (dict(tendons__1__length=0.6), "tendons[1].length must be <= the rod length, got 0.6"),
+    (dict(tendons__1__routing="zigzag"), "[[tendons]] #2.routing must be 'straight' or 'helix', got 'zigzag'"),
+    (dict(tendons__1__turns=1.0), "[[tendons]] #2.turns is only for routing = \"helix\""),
+    (dict(tendons__0__offst=[0.0, 0.0]), "unknown key 'offst' in [[tendons]] #1"),
+    (dict(actuation__tensions=[[2.0, -0.5]]), "[actuation].tensions[0][1] must be a finite number >= 0"),
+    (dict(actuation__tensions=[[2.0, 0.5, 1.0]]), "expected shape (B, 2) for 2 tendons, got (1, 3)"),
+    (dict(actuation__tensions=[[2.0, "1"]]), "[actuation].tensions: expected a number or a list of numbers"),
+    (dict(robot__length=[0.5, 0.4], actuation__tensions=[[1.0, 0.0]] * 3), "3 rows for a robot batch of 2 rods"),
+    (dict(robot__length=[0.5, 0.4], robot__radius=[0.001] * 3), "per-rod fields disagree on the batch size"),
+    (dict(solver__nodes=0), "solver nodes must be a positive integer, got 0"),
+    (dict(solver__nodes=20.5), "solver nodes must be a positive integer, got 20.5"),
+    (dict(solver__integrator="rk5"), "solver integrator must be one of"),
+    (dict(solver__precision="half"), "solver precision must be one of"),
+    (dict(solver__preset=3), "[solver].preset must be a string, got 3"),
+    (dict(solver__nodse=20), "unknown key 'nodse' in [solver]"),
+    (dict(extra={"a": 1}), "unknown key 'extra' in the scene"),
+])
+def test_bad_scenes_name_field_and_value(edits, message):
+    with pytest.raises(tw.InputError) as info:
+        scene_from_dict(scene(**edits))
+    assert message in str(info.value), str(info.value)
+
+
+def test_missing_tables():
+    for table in ("robot", "actuation"):
+        d = scene()
+        del d[table]
+        with pytest.raises(tw.InputError, match=rf"missing table \[{table}\]"):
+            scene_from_dict(d)
+
+
+def test_file_errors(tmp_path):
+    with pytest.raises(tw.InputError, match="cannot read scene .*nope.toml"):
+        load_scene(tmp_path / "nope.toml")
+    bad = tmp_path / "broken.toml"
+    bad.write_text("[robot]\nlength = \n")
+    with pytest.raises(tw.InputError) as info:
+        load_scene(bad)
+    try:
+        tomllib.loads(bad.read_text())
+    except tomllib.TOMLDecodeError as e:
+        toml_message = str(e)
+    assert str(bad) in str(info.value) and toml_message in str(info.value)
