@@ -87,3 +87,22 @@ def _to_toml(data: dict, prefix: str = "") -> str:
             text += f"\n[[{name}]]\n" if many else f"\n[{name}]\n"
             text += _to_toml(item, prefix=f"{name}.")
     return text
+
+
+def figures_main(command: str, scene: str, figure: str, argv=None) -> int:
+    """The body of the experiments/*_figures.py scripts: run ``command`` on examples/``scene``,
+    copy ``figure`` into docs/figures/ and write a JSON report."""
+    import argparse
+    import tempfile
+
+    ap = argparse.ArgumentParser(description=f"Regenerate docs/figures/{figure} from examples/{scene}.")
+    ap.add_argument("--smoke", action="store_true", help="a tiny version of the sweep, no figure copy")
+    ap.add_argument("--device", default="cpu")
+    ap.add_argument("--out", default=str(ROOT / "results" / f"{Path(scene).stem}.json"))
+    args = ap.parse_args(argv)
+    with tempfile.TemporaryDirectory() as tmp:
+        summary = run_job(command, ROOT / "examples" / scene, Path(tmp) / "run", smoke=args.smoke, figure=figure,
+                          extra=["--device", args.device])
+    summary.pop("settings", None)
+    write_report(args.out, {"meta": metadata(args.device), "summary": summary})
+    return 0

@@ -1,33 +1,18 @@
-"""Regenerate the README's workspace figure from examples/workspace.toml (docs/figures/workspace.png).
+"""Regenerate the README's workspace figure (docs/figures/workspace.png) from examples/workspace.toml.
 
     python experiments/workspace_figures.py [--smoke] [--out results/workspace.json]
 """
 
-from __future__ import annotations
-
-import argparse
 import sys
-import tempfile
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path[:0] = [str(ROOT / "experiments")]
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from _common import metadata, run_job, write_report  # noqa: E402
+from _common import figures_main  # noqa: E402
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--smoke", action="store_true", help="a tiny version of the sweep, no figure copy")
-    ap.add_argument("--device", default="cpu")
-    ap.add_argument("--out", default=str(ROOT / "results" / "workspace.json"))
-    args = ap.parse_args(argv)
-    with tempfile.TemporaryDirectory() as tmp:
-        summary = run_job("workspace", ROOT / "examples" / "workspace.toml", Path(tmp) / "run", smoke=args.smoke,
-                          figure="workspace.png", extra=["--device", args.device])
-    summary.pop("settings", None)
-    write_report(args.out, {"meta": metadata(args.device), "summary": summary})
-    return 0
+    return figures_main("workspace", "workspace.toml", "workspace.png", argv)
 
 
 if __name__ == "__main__":
