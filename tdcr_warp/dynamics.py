@@ -185,6 +185,9 @@ class Simulator:
                     if not on_path.any():
                         break
                 failed &= (bt.status.numpy() & layout.CONVERGED) == 0
+            if failed.any():  # last resort: plain Newton (a fresh Jacobian at every iterate) from x(i)
+                bt.set_tensions(tau[lo:hi])
+                bt.solve(x, None, mask=failed, **(newton | dict(broyden=False, max_iter=2 * o.max_iter)))
             status = bt.status.numpy().copy()
             ok = ((status & layout.CONVERGED) != 0) & alive
             self._launch_advance(bt, yp, ok.astype(np.int32))
