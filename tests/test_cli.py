@@ -12,28 +12,12 @@ import warp as wp
 import tdcr_warp as tw
 from tdcr_warp.cli import main
 from tdcr_warp.scene import load_scene
+from scenes import two_tendon_scene
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLES = ROOT / "examples"
 
-BASE = """
-[robot]
-length = 0.5
-youngs_modulus = 190e9
-poisson_ratio = 0.3
-radius = 0.001
-density = 7800
-[[tendons]]
-offset = [0.01, 0.0]
-[[tendons]]
-offset = [0.0, 0.01]
-[loads]
-gravity = [0.0, 0.0, -9.81]
-[actuation]
-tensions = [[2.0, 0.5]]
-[solver]
-nodes = 20
-"""
+BASE = two_tendon_scene("[[2.0, 0.5]]", nodes=20)
 
 
 def write(tmp_path, text, name="scene.toml"):

@@ -107,19 +107,15 @@ def test_constant_curvature_refuses_scenes_it_cannot_model():
 
 
 def test_presets_and_scene_key(tmp_path):
+    from scenes import ROBOT
+
     from tdcr_warp.scene import load_scene
     assert tw.StaticOptions.preset("fast").rod == "kirchhoff"
     assert tw.StaticOptions.preset("accurate", nodes=64).nodes == 64
     with pytest.raises(tw.InputError, match="preset"):
         tw.StaticOptions.preset("fastest")
     scene = tmp_path / "s.toml"
-    scene.write_text("""[robot]
-length = 0.5
-youngs_modulus = 190e9
-poisson_ratio = 0.3
-radius = 0.001
-density = 7800
-[[tendons]]
+    scene.write_text(ROBOT + """[[tendons]]
 offset = [0.01, 0.0]
 [actuation]
 tensions = [[1.0]]

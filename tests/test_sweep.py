@@ -12,27 +12,11 @@ from tdcr_warp.cli import main
 from tdcr_warp.jobs import constant_curvature_tip, convex_hull_2d, pareto_front, static_job
 from tdcr_warp.scene import scene_from_dict
 from tdcr_warp.sweep import run_sweep
+from scenes import two_tendon_scene
 
 ROOT = Path(__file__).resolve().parents[1]
 
-BASE = """
-[robot]
-length = 0.5
-youngs_modulus = 190e9
-poisson_ratio = 0.3
-radius = 0.001
-density = 7800
-[[tendons]]
-offset = [0.01, 0.0]
-[[tendons]]
-offset = [0.0, 0.01]
-[loads]
-gravity = [0.0, 0.0, -9.81]
-[actuation]
-tensions = [[1.0, 0.5]]
-[solver]
-nodes = 16
-"""
+BASE = two_tendon_scene("[[1.0, 0.5]]", nodes=16)
 
 GRID = BASE + """
 [sweep]
