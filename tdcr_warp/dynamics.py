@@ -176,14 +176,9 @@ class Simulator:
                     break
                 # A large tension change in one step: reach it by a homotopy in the tension
                 # increment, each sub-problem from the last (same time step, same history).
-                tau_prev = self._tau_prev[lo:hi]
-                on_path = failed.copy()  # rods still following the homotopy
-                for j in range(1, n_sub + 1):
-                    bt.set_tensions(tau_prev + (j / n_sub) * (tau[lo:hi] - tau_prev))
-                    bt.solve(x if j == 1 else None, None, mask=on_path, keep_jacobian=j > 1, **newton)
-                    on_path &= (bt.status.numpy() & layout.CONVERGED) != 0
-                    if not on_path.any():
-                        break
+                tau_prev, tau_new = self._tau_prev[lo:hi], tau[lo:hi]
+                bt.homotopy(lambda lam: bt.set_tensions(tau_prev + lam * (tau_new - tau_prev)), n_sub, failed, x,
+                            newton)
                 failed &= (bt.status.numpy() & layout.CONVERGED) == 0
             if failed.any():  # last resort: plain Newton (a fresh Jacobian at every iterate) from x(i)
                 bt.set_tensions(tau[lo:hi])

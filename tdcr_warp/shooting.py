@@ -268,7 +268,7 @@ class ShootingBatch:
         if J0 is not None:
             self.put(self.J, J0)
         self.need_jac.fill_(0 if (J0 is not None or keep_jacobian) else 1)
-        if mask is None:
+        if mask is None or np.all(mask):
             self.put(self.active, np.ones(self.b))
             for arr in (self.flags, self.status, self.iters, self.n_shoot):
                 arr.zero_()
@@ -306,6 +306,24 @@ class ShootingBatch:
             wp.launch(k.shoot, dim=self.b * self.kern.n_probes, device=dev,
                       inputs=[self.args, self.x, self.array(redo, np.int32), self.need_jac, self.res,
                               self.out])
+
+    def homotopy(self, set_load, steps: int, mask: np.ndarray, x0: np.ndarray, newton: dict):
+        """Follow a load path for the rods in ``mask``: ``set_load(lam)`` sets the problem at
+        lam = 1/steps, ..., 1, each solved from the last solution (the first from ``x0``). Rods
+        that fail on the way stop there, flagged. Returns the iterations and integrations each
+        rod spent, summed over the path."""
+        on_path = mask.copy()
+        iters = np.zeros(self.b, dtype=np.int64)
+        shots = np.zeros(self.b, dtype=np.int64)
+        for j in range(1, steps + 1):
+            set_load(j / steps)
+            self.solve(x0 if j == 1 else None, None, mask=on_path, keep_jacobian=j > 1, **newton)
+            iters[on_path] += self.iters.numpy()[on_path]
+            shots[on_path] += self.n_shoot.numpy()[on_path]
+            on_path &= (self.status.numpy() & layout.CONVERGED) != 0
+            if not on_path.any():
+                break
+        return iters, shots
 
     def results(self) -> dict[str, np.ndarray]:
         f64 = np.float64

@@ -170,15 +170,12 @@ MAX_CONTINUATION = 64
 
 def _continuation(bt: ShootingBatch, host: dict, tau: np.ndarray, x_full: np.ndarray, mask: np.ndarray,
                   steps: int, newton: dict) -> None:
-    """Homotopy for the rods in ``mask``: tensions and external loads scaled by lam = j / steps,
-    each step from the last solution (the straight-rod start is linear in the loads). Rods
-    that fail on the way stop there, flagged. Iterations and integrations add up."""
+    """Homotopy for the rods in ``mask``: tensions and external loads scaled by lam, from the
+    straight-rod start scaled likewise (it is linear in the loads). Iterations and
+    integrations add up over the path."""
     rod0, pf0 = host["rod"], host["pforce"]
-    mask = mask.copy()
-    iters = np.zeros(bt.b, dtype=np.int64)
-    shots = np.zeros(bt.b, dtype=np.int64)
-    for j in range(1, steps + 1):
-        lam = j / steps
+
+    def set_load(lam):
         rod = rod0.copy()
         for c in (layout.FE, layout.TIP_F, layout.TIP_M):
             rod[:, c:c + 3] *= lam
@@ -186,16 +183,9 @@ def _continuation(bt: ShootingBatch, host: dict, tau: np.ndarray, x_full: np.nda
         if pf0.shape[1]:
             bt.put(bt.args.pforce, pf0 * lam)
         bt.set_tensions(tau * lam)
-        bt.solve(x_full * lam if j == 1 else None, None, mask=mask, keep_jacobian=j > 1, **newton)
-        iters[mask] += bt.iters.numpy()[mask]
-        shots[mask] += bt.n_shoot.numpy()[mask]
-        mask &= (bt.status.numpy() & layout.CONVERGED) != 0
-        if not mask.any():
-            break
-    bt.put(bt.args.rod, rod0)
-    if pf0.shape[1]:
-        bt.put(bt.args.pforce, pf0)
-    bt.set_tensions(tau)
+
+    iters, shots = bt.homotopy(set_load, steps, mask, x_full * (1 / steps), newton)
+    set_load(1.0)
     touched = shots > 0
     it, sh = bt.iters.numpy().copy(), bt.n_shoot.numpy().copy()
     it[touched], sh[touched] = iters[touched], shots[touched]
