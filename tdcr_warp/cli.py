@@ -231,13 +231,7 @@ def _failure_counts(status: np.ndarray, ok: np.ndarray) -> dict[str, int]:
 
 def cmd_sweep(args) -> int:
     """montecarlo, workspace and gain-grid: a [sweep] over the scene, run in chunks."""
-    from .jobs import (
-        control_job,
-        static_job,
-        summarize_gain_grid,
-        summarize_montecarlo,
-        summarize_workspace,
-    )
+    from .jobs import SweepJob, summarize_gain_grid, summarize_montecarlo, summarize_workspace
     from .scene import load_scene
     from .statics import solve_static
     from .sweep import SweepSpec, peak_memory_mb, run_sweep
@@ -248,26 +242,25 @@ def cmd_sweep(args) -> int:
         data["solver"] = {k: v for k, v in vars(base.options).items() if v is not None}
     job_name = args.command
     dev = args.device
-    if job_name == "montecarlo":
-        def job(scene):
-            res = static_job(scene, dev)
-            if scene.control is not None:
-                ctl = control_job(scene, nominal=base, device=dev)
-                res["control_ok"] = ctl.pop("ok")
-                res.update(ctl)
-            return res
-    elif job_name == "workspace":
-        def job(scene):
-            return static_job(scene, dev)
-    else:
-        if base.control is None or base.dynamics is None:
-            raise InputError("gain-grid needs [dynamics] and [control] tables")
-
-        def job(scene):
-            return control_job(scene, device=dev)
+    if job_name == "gain-grid" and (base.control is None or base.dynamics is None):
+        raise InputError("gain-grid needs [dynamics] and [control] tables")
+    if args.shapes and job_name == "gain-grid":
+        raise InputError("--shapes: gain-grid returns metrics, not shapes (use montecarlo or workspace)")
+    gpus = args.gpus_per_task
+    if gpus is None:
+        gpus = 1.0 if args.backend == "ray" and str(dev or "").startswith("cuda") else 0.0
+    if args.backend == "ray" and gpus > 0:
+        dev = "cuda:0"  # Ray makes the task's GPU the first visible one
+    job = SweepJob(job_name, device=dev, nominal=data if job_name == "montecarlo" else None, shapes=args.shapes)
     out = Path(args.out or Path("out") / f"{Path(args.scene).stem}_{job_name}")
-    res = run_sweep(data, job, out, chunk=args.chunk, resume=args.resume, progress=not args.quiet,
-                    max_chunks=args.max_chunks, job_name=job_name)
+    try:
+        res = run_sweep(data, job, out, chunk=args.chunk, resume=args.resume, progress=not args.quiet,
+                        max_chunks=args.max_chunks, job_name=job_name, backend=args.backend, address=args.address,
+                        workers=args.workers, gpus_per_task=gpus, meta={"shapes": args.shapes})
+    except KeyboardInterrupt:
+        print(f"tdcr-warp: interrupted; the finished chunks are in {out}/chunks: rerun with --resume to finish",
+              file=sys.stderr)
+        return 130
     if res is None:
         print(f"stopped after {args.max_chunks} new chunk(s); rerun with --resume to finish ({out})")
         return 1
@@ -323,15 +316,24 @@ def build_parser() -> argparse.ArgumentParser:
             p.add_argument("--chunk", type=int, help="rods per chunk (default [sweep].chunk)")
             p.add_argument("--resume", action="store_true", help="continue an interrupted sweep in --out")
             p.add_argument("--max-chunks", type=int, help="stop after computing this many chunks")
+            p.add_argument("--backend", choices=["local", "ray"], default="local",
+                           help="local: in this process (default); ray: chunks as Ray tasks (pip install -e .[ray])")
+            p.add_argument("--address", help="Ray cluster address (default: start a local Ray for the run)")
+            p.add_argument("--workers", type=int, help="CPUs of the local Ray (default: all cores)")
+            p.add_argument("--gpus-per-task", type=float,
+                           help="GPUs per Ray task (default 1 with --device cuda..., else 0)")
+            p.add_argument("--shapes", action="store_true", help="also save every rod's backbone positions")
     return ap
 
 
 def main(argv=None) -> int:
     """Run the command line; returns the exit status (0 ok, 1 some rods failed, 2 bad input).
     A malformed command line (argparse) raises SystemExit(2) after printing the usage."""
+    from .cluster import SweepError
+
     args = build_parser().parse_args(argv)
     try:
-        if args.device is not None:
+        if args.device is not None and getattr(args, "backend", "local") == "local":
             import warp as wp
             try:
                 wp.get_device(args.device)
@@ -346,3 +348,6 @@ def main(argv=None) -> int:
     except OSError as e:
         print(f"tdcr-warp: error: {e}", file=sys.stderr)
         return 2
+    except SweepError as e:
+        print(f"tdcr-warp: error: {e}", file=sys.stderr)
+        return 1

@@ -6,6 +6,7 @@ gain-grid searches. Each has a per-chunk job (scene -> per-rod arrays) and a sum
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -16,13 +17,18 @@ from .robot import InputError
 from .scene import Scene, scene_from_dict
 from .statics import solve_static
 
-__all__ = ["constant_curvature_tip", "control_job", "convex_hull_2d", "pareto_front", "static_job"]
+__all__ = ["SweepJob", "constant_curvature_tip", "control_job", "convex_hull_2d", "pareto_front", "static_job"]
 
 
-def static_job(scene: Scene, device=None) -> dict[str, np.ndarray]:
+def static_job(scene: Scene, device=None, shapes: bool = False) -> dict[str, np.ndarray]:
+    """Compact per-rod statics: tip pose, convergence, status bits, iterations, residual,
+    tensions; with ``shapes`` also the backbone positions (B, N+1, 3)."""
     sol = solve_static(scene.robot, scene.tensions, options=scene.options, device=device)
-    return {"tip_position": sol.tip_position, "ok": sol.converged, "status": sol.status,
-            "iterations": sol.iterations, "residual": sol.residual, "tensions": scene.tensions}
+    out = {"tip_position": sol.tip_position, "tip_rotation": sol.tip_rotation, "ok": sol.converged,
+           "status": sol.status, "iterations": sol.iterations, "residual": sol.residual, "tensions": scene.tensions}
+    if shapes:
+        out["positions"] = sol.positions
+    return out
 
 
 def control_job(scene: Scene, nominal: Scene | None = None, device=None) -> dict[str, np.ndarray]:
@@ -47,6 +53,31 @@ def control_job(scene: Scene, nominal: Scene | None = None, device=None) -> dict
     ok = sim.failed_step < 0
     return {"ok": ok, "final_tip": run.tip_position[-1], "target": controller.target,
             **{k: v for k, v in m.items()}}
+
+
+@dataclass(frozen=True)
+class SweepJob:
+    """The per-chunk job of a sweep command, picklable so that another process (a Ray
+    worker) can run it: ``job(scene) -> dict of per-rod arrays``.
+
+    name: montecarlo | workspace | gain-grid; device: Warp device (None: Warp's default);
+    nominal: the base scene dict whose robot the Monte-Carlo controller models; shapes:
+    return backbone positions too (statics jobs)."""
+
+    name: str
+    device: str | None = None
+    nominal: dict | None = None
+    shapes: bool = False
+
+    def __call__(self, scene: Scene) -> dict[str, np.ndarray]:
+        if self.name == "gain-grid":
+            return control_job(scene, device=self.device)
+        res = static_job(scene, self.device, shapes=self.shapes)
+        if self.name == "montecarlo" and scene.control is not None:
+            ctl = control_job(scene, nominal=scene_from_dict(self.nominal), device=self.device)
+            res["control_ok"] = ctl.pop("ok")
+            res.update(ctl)
+        return res
 
 
 def _tiled(scene: Scene, B: int):

@@ -18,7 +18,8 @@ Field names: ``robot.<key>``, ``loads.<gravity|tip_force|tip_moment>[c]``,
 ``tendons[i].<offset[c]|radius|turns|phase|length>``, ``actuation.tensions[k]`` (tendon k),
 ``dynamics.<damping_shear|damping_bending|drag>[c]``, ``control.<gain_c[c]|gain_k[c]|target[c]|
 epsilon|phi|tension_max>``; a vector field without an index sets all its components. Each chunk's results are written to ``chunks/chunk_NNNNN.npz`` as
-soon as it is done, so ``resume=True`` continues where an interrupted sweep stopped.
+soon as it is done, so ``resume=True`` continues where an interrupted sweep stopped, with
+either backend (in-process, or Ray tasks on a cluster: :mod:`tdcr_warp.cluster`).
 """
 
 from __future__ import annotations
@@ -38,7 +39,7 @@ import numpy as np
 from .robot import InputError
 from .scene import scene_from_dict
 
-__all__ = ["SweepSpec", "apply_rows", "make_samples", "run_sweep"]
+__all__ = ["SweepSpec", "apply_rows", "chunk_path", "make_samples", "run_sweep"]
 
 _TOKEN = re.compile(r"([A-Za-z_]+)(?:\[(\d+)\])?")
 DISTRIBUTIONS = ("normal", "uniform", "lognormal")
@@ -183,16 +184,35 @@ def peak_memory_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
+def chunk_path(out_dir, c: int) -> Path:
+    return Path(out_dir) / "chunks" / f"chunk_{c:05d}.npz"
+
+
+def _local_chunks(data: dict, job, todo: list[int], rows_of):
+    """The in-process backend: chunks one after another in this process."""
+    for c in todo:
+        yield c, job(scene_from_dict(apply_rows(data, rows_of(c))))
+
+
 def run_sweep(data: dict, job, out_dir, *, chunk: int | None = None, resume: bool = False,
-              progress: bool = True, max_chunks: int | None = None, job_name: str = "sweep") -> dict | None:
+              progress: bool = True, max_chunks: int | None = None, job_name: str = "sweep",
+              backend: str = "local", address: str | None = None, workers: int | None = None,
+              gpus_per_task: float = 0.0, meta: dict | None = None) -> dict | None:
     """Run ``job(scene) -> dict of per-rod arrays`` over every sample row, chunk by chunk.
 
-    Returns the concatenated results (also in ``out_dir/results.npz``) plus ``samples``, or
-    None when ``max_chunks`` stopped it early (resume later). Chunk files are written
-    atomically; ``resume`` reuses those of an identical earlier sweep.
+    backend "local" runs the chunks in this process; "ray" runs them as Ray tasks (see
+    :mod:`tdcr_warp.cluster`: ``address`` of a cluster, else a local one of ``workers`` CPUs;
+    ``job`` must then be picklable, e.g. a :class:`~tdcr_warp.jobs.SweepJob`). Either way this
+    process writes each finished chunk atomically to ``out_dir/chunks/`` and the results do
+    not depend on the backend, the chunk order or the chunk size. Returns the concatenated
+    results (also in ``out_dir/results.npz``) plus ``samples``, or None when ``max_chunks``
+    stopped it early (resume later, with either backend). ``resume`` reuses the chunks of an
+    identical earlier sweep; ``meta`` (JSON-able) joins the manifest that guards it.
     """
     from .dynamics import _Progress
 
+    if backend not in ("local", "ray"):
+        raise InputError(f"backend must be 'local' or 'ray', got {backend!r}")
     spec = SweepSpec(data)
     rows = make_samples(spec)
     M = len(next(iter(rows.values())))
@@ -201,7 +221,8 @@ def run_sweep(data: dict, job, out_dir, *, chunk: int | None = None, resume: boo
     size = chunk or spec.chunk
     out = Path(out_dir)
     (out / "chunks").mkdir(parents=True, exist_ok=True)
-    manifest = {"job": job_name, "rods": M, "chunk": size, "scene": _scene_hash(data), "fields": list(rows)}
+    manifest = {"job": job_name, "rods": M, "chunk": size, "scene": _scene_hash(data), "fields": list(rows),
+                **(meta or {})}
     man_path = out / "manifest.json"
     if man_path.exists() and resume:
         old = json.loads(man_path.read_text())
@@ -213,30 +234,41 @@ def run_sweep(data: dict, job, out_dir, *, chunk: int | None = None, resume: boo
             f.unlink()
         man_path.write_text(json.dumps(manifest))
     n_chunks = (M + size - 1) // size
-    bar = _Progress(M, 1, unit="rods", rate_unit="rods/s") if progress else None
-    parts, done_rods, computed = [], 0, 0
+    bounds = [(c * size, min(M, (c + 1) * size)) for c in range(n_chunks)]
+
+    def rows_of(c):
+        lo, hi = bounds[c]
+        return {k: v[lo:hi] for k, v in rows.items()}
+
+    parts = {c: dict(np.load(chunk_path(out, c))) for c in range(n_chunks) if chunk_path(out, c).exists()}
+    missing = [c for c in range(n_chunks) if c not in parts]
+    todo = missing if max_chunks is None else missing[:max_chunks]
+    done_rods = sum(hi - lo for c, (lo, hi) in enumerate(bounds) if c in parts)
+    bar = _Progress(M, 1, unit="rods", rate_unit="rods/s", start=done_rods) if progress else None
+    failed = int(sum((~p["ok"].astype(bool)).sum() for p in parts.values()))
     t0 = time.perf_counter()
-    for c in range(n_chunks):
-        lo, hi = c * size, min(M, (c + 1) * size)
-        path = out / "chunks" / f"chunk_{c:05d}.npz"
-        if path.exists():
-            res = dict(np.load(path))
-        else:
-            if max_chunks is not None and computed >= max_chunks:
-                if bar:
-                    bar.close()
-                return None
-            scene = scene_from_dict(apply_rows(data, {k: v[lo:hi] for k, v in rows.items()}))
-            res = job(scene)
-            _save_npz(path, res)
-            computed += 1
-        parts.append(res)
-        done_rods = hi
+    if backend == "local":
+        finished = _local_chunks(data, job, todo, rows_of)
+    else:
+        from .cluster import ray_chunks
+        finished = ray_chunks(data, job, todo, rows_of, address=address, workers=workers,
+                              gpus_per_task=gpus_per_task)
+    try:
+        for c, res in finished:
+            _save_npz(chunk_path(out, c), res)
+            parts[c] = res
+            lo, hi = bounds[c]
+            done_rods += hi - lo
+            failed += int((~res["ok"].astype(bool)).sum())
+            if bar:
+                bar.update(done_rods, failed, f" ({len(parts)}/{n_chunks} chunks)")
+    finally:
+        finished.close()
         if bar:
-            bar.update(done_rods, int(sum((~p["ok"]).sum() for p in parts)))
-    if bar:
-        bar.close()
-    results = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+            bar.close()
+    if len(parts) < n_chunks:
+        return None
+    results = {k: np.concatenate([parts[c][k] for c in range(n_chunks)]) for k in parts[0]}
     results.update({f"sample:{k}": v for k, v in rows.items()})
     _save_npz(out / "results.npz", results)
     results["_wall_s"] = time.perf_counter() - t0

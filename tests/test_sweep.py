@@ -1,6 +1,7 @@
 """Chunked sweeps and the three users' jobs at small size."""
 
 import json
+import sys
 import tomllib
 from pathlib import Path
 
@@ -179,3 +180,11 @@ def test_bad_sweeps_exit_2(tmp_path, capsys, edit, message):
     scene.write_text(bad)
     assert main(["workspace", str(scene), "--out", str(tmp_path / "o"), "--quiet"]) == 2
     assert message in capsys.readouterr().err
+
+
+def test_ray_backend_without_ray_is_a_clear_error(tmp_path, capsys, monkeypatch):
+    monkeypatch.setitem(sys.modules, "ray", None)  # import ray fails, as without the extra
+    scene = tmp_path / "g.toml"
+    scene.write_text(GRID)
+    assert main(["workspace", str(scene), "--out", str(tmp_path / "o"), "--quiet", "--backend", "ray"]) == 2
+    assert 'pip install -e ".[ray]"' in capsys.readouterr().err

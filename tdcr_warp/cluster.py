@@ -1,0 +1,103 @@
+"""The Ray backend of chunked sweeps: each chunk is a Ray task, so one sweep spans the cores,
+GPUs and machines of a Ray cluster (``pip install -e ".[ray]"``).
+
+A task receives the base scene (put in Ray's object store once), its chunk's sample rows
+and the picklable job, builds the batch, solves it and returns the job's compact per-rod
+arrays; the driver (:func:`tdcr_warp.sweep.run_sweep`) writes each chunk as it arrives.
+Worker processes are reused from task to task, so a worker compiles or loads each Warp
+module once, not once per chunk; workers that share a disk also share the kernel cache
+(``WARP_CACHE_PATH`` of the driver, when set, is passed on to them). A task whose worker
+dies is re-run by Ray (``max_retries``); a job's own error (bad sample row) is not retried.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from dataclasses import replace
+
+from .robot import InputError
+from .scene import scene_from_dict
+from .sweep import apply_rows
+
+__all__ = ["SweepError", "ray_chunks"]
+
+
+class SweepError(RuntimeError):
+    """A chunk could not be computed (its worker died more often than the retries allow)."""
+
+
+def _import_ray():
+    try:
+        import ray
+    except ImportError:
+        raise InputError("--backend ray needs Ray: pip install -e \".[ray]\"") from None
+    return ray
+
+
+def solve_chunk(job, data: dict, rows: dict, threads: int) -> tuple[dict, dict]:
+    """Run in a Ray worker: one chunk's batch through ``job``; returns (results, worker info)."""
+    t0 = time.perf_counter()
+    scene = scene_from_dict(apply_rows(data, rows))
+    if scene.options.threads is None:  # one CPU thread per task: the cluster schedules the cores
+        scene = replace(scene, options=replace(scene.options, threads=threads))
+    res = job(scene)
+    return res, {"pid": os.getpid(), "seconds": time.perf_counter() - t0}
+
+
+def ray_chunks(data: dict, job, todo: list[int], rows_of, *, address: str | None = None,
+               workers: int | None = None, gpus_per_task: float = 0.0, max_retries: int = 3,
+               worker_info: list | None = None):
+    """Yield ``(chunk index, results)`` for the chunks in ``todo`` as Ray finishes them.
+
+    Joins the running Ray session, or the cluster at ``address``, or starts a local one of
+    ``workers`` CPUs (default: all) that it shuts down at the end. One CPU (and
+    ``gpus_per_task`` GPUs) per task; at most two tasks per CPU are in flight, so the object
+    store holds a bounded number of chunks. ``worker_info`` collects each task's pid and
+    seconds. Closing the generator (or an interrupt) cancels the tasks still in flight.
+    """
+    ray = _import_ray()
+    if workers is not None and (not isinstance(workers, int) or workers < 1):
+        raise InputError(f"--workers must be a positive integer, got {workers!r}")
+    started = False
+    if not ray.is_initialized():
+        env = {"WARP_CACHE_PATH": os.environ["WARP_CACHE_PATH"]} if "WARP_CACHE_PATH" in os.environ else {}
+        kw = {"address": address} if address else {"num_cpus": workers or os.cpu_count() or 1}
+        try:
+            ray.init(include_dashboard=False, log_to_driver=False, runtime_env={"env_vars": env}, **kw)
+        except (ConnectionError, ValueError, RuntimeError) as e:
+            raise InputError(f"--address {address!r}: cannot join the Ray cluster: {e}") from None
+        started = True
+    pending: dict = {}
+    try:
+        cpus = int(ray.cluster_resources().get("CPU", 1))
+        if gpus_per_task and ray.cluster_resources().get("GPU", 0) < gpus_per_task:
+            raise InputError(f"--gpus-per-task {gpus_per_task}: the Ray cluster has "
+                             f"{ray.cluster_resources().get('GPU', 0)} GPUs")
+        task = ray.remote(solve_chunk).options(num_cpus=1, num_gpus=gpus_per_task, max_retries=max_retries)
+        data_ref = ray.put(data)
+        queue = list(todo)
+        while queue or pending:
+            while queue and len(pending) < 2 * cpus:
+                c = queue.pop(0)
+                pending[task.remote(job, data_ref, rows_of(c), 1)] = c
+            ready, _ = ray.wait(list(pending), num_returns=1)
+            for ref in ready:
+                c = pending.pop(ref)
+                try:
+                    res, info = ray.get(ref)
+                except ray.exceptions.RayTaskError as e:
+                    if isinstance(e.cause, InputError):
+                        raise InputError(str(e.cause)) from None
+                    raise SweepError(f"chunk {c} failed in its worker: {e.cause!r}") from None
+                except ray.exceptions.RayError as e:
+                    raise SweepError(f"chunk {c} was lost after {max_retries} retries ({type(e).__name__}); "
+                                     "the chunks done so far are saved: rerun with --resume") from None
+                if worker_info is not None:
+                    worker_info.append({"chunk": c, **info})
+                yield c, res
+    finally:
+        for ref in pending:
+            ray.cancel(ref, force=True)
+        if started:
+            ray.shutdown()

@@ -1,0 +1,148 @@
+"""The Ray backend of sweeps (skipped without the ray extra): a local 2-CPU Ray cluster must give
+the in-process results rod for rod, survive a worker that dies, and resume across backends."""
+
+import os
+import signal
+import subprocess
+import sys
+import time
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tdcr_warp.cli import main
+from tdcr_warp.jobs import SweepJob, static_job
+from tdcr_warp.sweep import run_sweep
+from scenes import two_tendon_scene
+
+ray = pytest.importorskip("ray")
+
+TESTS = Path(__file__).resolve().parent
+
+SWEEP = two_tendon_scene("[[1.0, 0.5]]", nodes=16) + """
+[sweep]
+chunk = 5
+seed = 7
+samples = 23
+[[uncertainty]]
+field = "robot.youngs_modulus"
+distribution = "normal"
+params = [190e9, 10e9]
+[[uncertainty]]
+field = "actuation.tensions[0]"
+distribution = "uniform"
+params = [0.0, 4.0]
+"""
+
+
+class DieOnce:
+    """A job whose first call kills its own worker process (as a crash or an OOM kill would);
+    every later call, in a new worker, does the real work."""
+
+    def __init__(self, marker: str):
+        self.marker = marker
+
+    def __call__(self, scene):
+        try:
+            os.remove(self.marker)  # atomic: exactly one task wins
+        except FileNotFoundError:
+            return static_job(scene)
+        os._exit(1)
+
+
+@pytest.fixture(scope="module")
+def cluster():
+    """One local Ray of 2 CPUs for the module; workers can import this test module."""
+    path = os.pathsep.join(filter(None, [str(TESTS), os.environ.get("PYTHONPATH")]))
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False,
+             runtime_env={"env_vars": {"PYTHONPATH": path}})
+    yield ray.get_runtime_context().gcs_address
+    ray.shutdown()
+
+
+@pytest.fixture(scope="module")
+def local(tmp_path_factory):
+    """The in-process reference result of SWEEP."""
+    return run_sweep(tomllib.loads(SWEEP), SweepJob("workspace"), tmp_path_factory.mktemp("local"), progress=False)
+
+
+def assert_same(a: dict, b: dict) -> None:
+    assert set(a) - {"_wall_s"} == set(b) - {"_wall_s"}
+    for k in a:
+        if k != "_wall_s":
+            assert np.array_equal(a[k], b[k]), k
+
+
+def test_two_workers_give_the_in_process_result(cluster, local, tmp_path):
+    res = run_sweep(tomllib.loads(SWEEP), SweepJob("workspace"), tmp_path, backend="ray", progress=False)
+    assert res["ok"].all() and len(res["ok"]) == 23
+    assert_same(local, res)
+
+
+def test_workers_are_reused_across_chunks(cluster):
+    """Kernels load once per worker process: 10 chunks run on at most the 2 workers' processes."""
+    from tdcr_warp.cluster import ray_chunks
+    from tdcr_warp.sweep import SweepSpec, make_samples
+
+    data = tomllib.loads(SWEEP)
+    rows = make_samples(SweepSpec(data))
+    info = []
+    done = dict(ray_chunks(data, static_job, list(range(10)),
+                           lambda c: {k: v[2 * c:2 * c + 2] for k, v in rows.items()}, worker_info=info))
+    assert sorted(done) == list(range(10)) and len(info) == 10
+    assert len({i["pid"] for i in info}) <= 2
+
+
+def test_a_killed_worker_is_retried_and_nothing_is_lost(cluster, local, tmp_path):
+    marker = tmp_path / "die_once"
+    marker.touch()
+    res = run_sweep(tomllib.loads(SWEEP), DieOnce(str(marker)), tmp_path / "o", backend="ray", progress=False)
+    assert not marker.exists(), "no worker was killed"
+    assert_same(local, res)
+
+
+@pytest.mark.parametrize("first,second", [("local", "ray"), ("ray", "local")])
+def test_resume_across_backends(cluster, local, tmp_path, first, second):
+    data = tomllib.loads(SWEEP)
+    job = SweepJob("workspace")
+    assert run_sweep(data, job, tmp_path, backend=first, max_chunks=2, progress=False) is None
+    assert len(list((tmp_path / "chunks").glob("chunk_*.npz"))) == 2
+    assert_same(local, run_sweep(data, job, tmp_path, backend=second, resume=True, progress=False))
+
+
+def test_interrupted_driver_resumes(cluster, local, tmp_path):
+    """Ctrl-C of the CLI driver in the middle of a Ray sweep, then --resume in process."""
+    scene = tmp_path / "big.toml"
+    scene.write_text(SWEEP.replace("samples = 23", "samples = 600").replace("chunk = 5", "chunk = 3"))
+    out = tmp_path / "o"
+    proc = subprocess.Popen([sys.executable, "-m", "tdcr_warp", "workspace", str(scene), "--out", str(out),
+                             "--backend", "ray", "--address", cluster, "--quiet"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
+    while not list((out / "chunks").glob("chunk_*.npz")) and proc.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.01)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err
+    assert "rerun with --resume" in err
+    n_done = len(list((out / "chunks").glob("chunk_*.npz")))
+    assert 1 <= n_done < 200 and not (out / "results.npz").exists()
+    assert main(["workspace", str(scene), "--out", str(out), "--quiet", "--resume"]) == 0
+    full = tmp_path / "full"
+    assert main(["workspace", str(scene), "--out", str(full), "--quiet"]) == 0
+    a, b = np.load(out / "results.npz"), np.load(full / "results.npz")
+    for k in a.files:
+        assert np.array_equal(a[k], b[k]), k
+
+
+def test_cli_ray_backend_matches_local(cluster, tmp_path):
+    scene = tmp_path / "s.toml"
+    scene.write_text(SWEEP)
+    assert main(["montecarlo", str(scene), "--out", str(tmp_path / "r"), "--quiet", "--backend", "ray"]) == 0
+    assert main(["montecarlo", str(scene), "--out", str(tmp_path / "l"), "--quiet", "--shapes"]) == 0
+    a, b = np.load(tmp_path / "r" / "results.npz"), np.load(tmp_path / "l" / "results.npz")
+    assert "positions" not in a.files and b["positions"].shape == (23, 17, 3)
+    for k in a.files:
+        assert np.array_equal(a[k], b[k]), k
