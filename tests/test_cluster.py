@@ -119,8 +119,11 @@ def test_interrupted_driver_resumes(cluster, local, tmp_path):
     scene.write_text(SWEEP.replace("samples = 23", "samples = 600").replace("chunk = 5", "chunk = 2")
                      .replace("nodes = 16", "nodes = 100"))
     out = tmp_path / "o"
-    proc = subprocess.Popen([sys.executable, "-m", "tdcr_warp", "workspace", str(scene), "--out", str(out),
-                             "--backend", "ray", "--address", cluster, "--quiet"],
+    argv = ["workspace", str(scene), "--out", str(out), "--backend", "ray", "--address", cluster, "--quiet"]
+    # Ctrl-C raises KeyboardInterrupt even where this test runs as a background job (SIGINT ignored)
+    code = ("import signal, sys; signal.signal(signal.SIGINT, signal.default_int_handler); "
+            f"from tdcr_warp.cli import main; sys.exit(main({argv!r}))")
+    proc = subprocess.Popen([sys.executable, "-c", code],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + 120
     while not list((out / "chunks").glob("chunk_*.npz")) and proc.poll() is None and time.monotonic() < deadline:
