@@ -5,13 +5,14 @@ Statics envelope (dimensionless groups sampled, then turned into SI inputs):
   E in [1e5, 1e12] Pa (log-uniform), L in [0.05, 5] m, slenderness L / r in [50, 500]
   (log-uniform, radius in [2e-4, 2e-2] m), tendon offsets in [1.5, 15] rod radii, 1 to 4
   tendons at random angles, gravity sag rho A g L^3 / EI in [0, 2] in a random direction,
-  nodes N in {10, 20, 50, 200}, coupled or point model, float64 or float32.
+  nodes N in {10, 20, 50, 200, 2000}, coupled or point model, float64 or float32.
 Beyond it (measured, failures flagged): a full curl (theta up to 2 pi), slenderness 20 to 2000, N = 5.
-Dynamics envelope: the same rods up to a quarter turn, 5 steps of dt in [1e-3, 1] s (log-uniform)
-with alpha in [-0.48, 0] and Bbt giving modal damping ratio in [0.01, 1] (nearly undamped rods,
-zeta < 0.006: 4 of 959 runs failed when zeta was in [0, 1]), only where the
-single-shooting amplification exp(L (rho A c0^2 / EI)^(1/4) / sqrt 2) < 1e6 and the tendon
-compression sum(tau) L^2 / EI < 20 (Beck's flutter load of a follower-loaded cantilever).
+Dynamics envelope: the same rods up to a quarter turn, 5 steps from rest under the tension step,
+dt in [1e-3, 1] s (log-uniform), alpha in [-0.48, 0], Bbt giving a first-mode damping ratio zeta
+in [0.01, 1], N in {10, 20, 50}, where the single-shooting amplification
+exp(L (rho A c0^2 / EI)^(1/4) / sqrt 2) < 1e6 (float32: < 1e4) and the tendon compression
+sum(tau) L^2 / EI < 20 (Beck's flutter load of a follower-loaded cantilever).
+Beyond it (measured, failures flagged): zeta in [0, 0.01]; dt down to 1e-5 s (amplification > 1e6).
 
     python experiments/envelope.py [--smoke] [--samples 100000] [--out results/envelope.json]
 """
@@ -31,7 +32,7 @@ sys.path[:0] = [str(ROOT / "experiments")]
 import tdcr_warp as tw  # noqa: E402
 from _common import metadata, write_report  # noqa: E402
 
-NODES = (10, 20, 50, 200)
+NODES = (10, 20, 50, 200, 2000)
 ENVELOPE = dict(bend_max=np.pi, slender=(50.0, 500.0))
 BEYOND = dict(bend_max=2 * np.pi, slender=(20.0, 2000.0))
 K_MAX = 4
@@ -82,7 +83,16 @@ def run_statics(samples: int, rng, precision: str, model: str, nodes: int, regio
                 failed_theta=s["theta"][~ok].tolist()[:20])
 
 
-def run_dynamics(samples: int, rng) -> dict:
+DYN_ENVELOPE = dict(zeta=(0.01, 1.0), dt=(1e-3, 1.0), amp_max=1e6)
+DYN_FLOAT32 = dict(zeta=(0.01, 1.0), dt=(1e-3, 1.0), amp_max=1e4)  # float32 eps x amplification << tol
+DYN_UNDAMPED = dict(zeta=(0.0, 0.01), dt=(1e-3, 1.0), amp_max=1e6)
+DYN_SMALL_DT = dict(zeta=(0.01, 1.0), dt=(1e-5, 1e-2), amp_min=1e6, amp_max=np.inf)
+
+
+def run_dynamics(samples: int, rng, *, zeta=(0.01, 1.0), dt=(1e-3, 1.0), amp_min: float = 0.0, amp_max: float = 1e6,
+                 nodes: int = 20, precision: str = "float64") -> dict:
+    """5 steps from rest under a tension step for each sampled rod whose single-shooting
+    amplification lies in [amp_min, amp_max) and whose compression is below Beck's flutter load."""
     s = sample_envelope(samples, rng, bend_max=np.pi / 2)
     rob0 = tw.Robot(**s["robot"])
     sec = rob0.section()
@@ -90,27 +100,30 @@ def run_dynamics(samples: int, rng) -> dict:
     rhoA = 7800.0 * sec["area"]
     L = rob0.length
     omega = 1.8751**2 * np.sqrt(EI / (rhoA * L**4))
-    zeta = rng.uniform(0.01, 1, samples)
-    dt = np.exp(rng.uniform(np.log(1e-3), np.log(1.0), samples))
+    zeta = rng.uniform(*zeta, samples)
+    dt = np.exp(rng.uniform(np.log(dt[0]), np.log(dt[1]), samples))
     alpha = rng.uniform(-0.48, 0.0, samples)
     c0 = (1.5 + alpha) / (dt * (1 + alpha))
     amp = L * (rhoA * c0**2 / EI) ** 0.25 / np.sqrt(2)
     compression = s["tensions"].sum(axis=1) * L**2 / EI
     # beyond ~20 EI / L^2 a follower-loaded cantilever flutters (Beck's column): a physical
     # dynamic instability, outside the envelope
-    inside = (amp < np.log(1e6)) & (compression < 20.0)
+    inside = (amp >= np.log(max(amp_min, 1.0))) & (amp < np.log(amp_max)) & (compression < 20.0)
     results = {"inside": int(inside.sum()), "converged": 0, "failed": 0, "skipped_outside": int((~inside).sum()),
-               "failures": []}
+               "nodes": nodes, "precision": precision, "reasons": {}, "failures": []}
     for b in np.flatnonzero(inside):
         rob = tw.Robot(length=L[b], youngs_modulus=rob0.youngs_modulus[b], radius=rob0.radius[b], density=7800.0,
                        gravity=s["robot"]["gravity"][b],
                        tendons=[tw.Tendon(offset=t.offset[b]) for t in s["robot"]["tendons"]],
                        damping_bending=np.full(3, 2 * zeta[b] * EI[b] / omega[b]))
-        sim = tw.Simulator(rob, np.zeros((1, K_MAX)), dt=float(dt[b]), alpha=float(alpha[b]), nodes=20)
+        sim = tw.Simulator(rob, np.zeros((1, K_MAX)), dt=float(dt[b]), alpha=float(alpha[b]), nodes=nodes,
+                           precision=precision)
         tr = sim.simulate(np.tile(s["tensions"][b], (5, 1)), 5)
         results["converged" if tr.converged.all() else "failed"] += 1
         if not tr.converged.all():
             f = int(tr.failed_step[0])
+            reason = tw.statics.describe_status(int(tr.status[f, 0]))
+            results["reasons"][reason] = results["reasons"].get(reason, 0) + 1
             results["failures"].append(dict(step=f, status=int(tr.status[f, 0]), dt=float(dt[b]),
                                             alpha=float(alpha[b]), amplification=float(np.exp(amp[b])),
                                             zeta=float(zeta[b]), theta=float(s["theta"][b]),
@@ -122,6 +135,7 @@ def run_dynamics(samples: int, rng) -> dict:
                                                      damping_bending=float(2 * zeta[b] * EI[b] / omega[b]),
                                                      tensions=s["tensions"][b].tolist())))
     results["rate"] = results["converged"] / max(1, results["inside"])
+    results["failures"] = results["failures"][:20]
     return results
 
 
@@ -129,7 +143,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--smoke", action="store_true")
     ap.add_argument("--samples", type=int, default=100000, help="statics rods, main configuration")
-    ap.add_argument("--dynamic-samples", type=int, default=300)
+    ap.add_argument("--dynamic-samples", type=int, default=20000, help="dynamic rods sampled, main configuration")
     ap.add_argument("--device", default="cpu")
     ap.add_argument("--out", default=str(ROOT / "results" / "envelope.json"))
     args = ap.parse_args(argv)
@@ -140,7 +154,7 @@ def main(argv=None) -> int:
     configs = [("float64", "coupled", 20, ENVELOPE, 1.0), ("float64", "point", 20, ENVELOPE, 0.1),
                ("float32", "coupled", 20, ENVELOPE, 0.1), ("float64", "coupled", 20, BEYOND, 0.1),
                ("float64", "coupled", 5, ENVELOPE, 0.1)]
-    configs += [("float64", "coupled", nn, ENVELOPE, 0.1 if nn < 200 else 0.01) for nn in NODES if nn != 20]
+    configs += [("float64", "coupled", nn, ENVELOPE, {200: 0.01, 2000: 0.001}.get(nn, 0.1)) for nn in NODES if nn != 20]
     for precision, model, nodes, region, share in configs:
         samples = max(16, int(n * share))
         row = run_statics(samples, rng, precision, model, nodes, region)
@@ -148,9 +162,19 @@ def main(argv=None) -> int:
         tag = "envelope" if region is ENVELOPE else "beyond  "
         print(f"statics {tag} {precision} {model:8s} N={nodes:4d}: {row['converged']:.4%} of {samples} converged "
               f"({row['failed']} failed: {row['reasons']}), {samples / row['seconds']:,.0f} rods/s")
-    dyn = run_dynamics(8 if args.smoke else args.dynamic_samples, rng)
-    print(f"dynamics: {dyn['converged']} of {dyn['inside']} inside the envelope converged every step "
-          f"({dyn['skipped_outside']} sampled outside it); failures: {dyn['failures']}")
+    m = 8 if args.smoke else args.dynamic_samples
+    dyn = []
+    # (name, region, nodes, precision, share of the dynamic sample count)
+    for name, region, nodes, precision, share in (
+            ("envelope", DYN_ENVELOPE, 20, "float64", 1.0), ("envelope", DYN_ENVELOPE, 10, "float64", 0.1),
+            ("envelope", DYN_ENVELOPE, 50, "float64", 0.1), ("envelope float32", DYN_FLOAT32, 20, "float32", 0.1),
+            ("beyond: zeta < 0.01", DYN_UNDAMPED, 20, "float64", 0.1),
+            ("beyond: small dt", DYN_SMALL_DT, 20, "float64", 0.05)):
+        row = run_dynamics(max(8, int(m * share)), rng, nodes=nodes, precision=precision, **region)
+        row.update(region=name, settings={k: list(v) if isinstance(v, tuple) else v for k, v in region.items()})
+        dyn.append(row)
+        print(f"dynamics {name:20s} {precision} N={nodes:3d}: {row['converged']} of {row['inside']} converged every "
+              f"step ({row['rate']:.3%}; {row['skipped_outside']} sampled outside), failures: {row['reasons']}")
     write_report(args.out, {"meta": metadata(args.device), "statics": rows, "dynamics": dyn})
     return 0
 

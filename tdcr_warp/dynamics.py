@@ -126,6 +126,10 @@ class Simulator:
                                       rod=self.opts.rod, features=features)
                         for lo, hi in self.chunks]
         self._advance = make_history_kernel(self.batches[0].wdtype)
+        sec = robot.section()
+        stiff = np.concatenate(np.broadcast_arrays(sec["kse"], sec["kbt"]), axis=1)  # (1|B, 6)
+        self._dyn = [np.broadcast_to(rows(dyn, lo, hi), (hi - lo, layout.DYN_WIDTH)) for lo, hi in self.chunks]
+        self._stiff = [np.broadcast_to(rows(stiff, lo, hi), (hi - lo, 6)) for lo, hi in self.chunks]
         self._yprev = [wp.zeros_like(bt.args.ycur) for bt in self.batches]
         x0 = static.base_wrench * unknown_scales(robot, self.B)
         for (lo, hi), bt, yp in zip(self.chunks, self.batches, self._yprev):
@@ -144,6 +148,12 @@ class Simulator:
         self.tip_acceleration = np.zeros((self.B, 3))
         self._vel_hist = np.zeros((self.B, 3))  # BDF-alpha history of the tip velocity (0 at rest)
         self._vel_prev = np.zeros((self.B, 3))
+
+    def _set_damping(self, bt: ShootingBatch, i: int, s: float) -> None:
+        """Chunk i's dynamics table with s K / c0 added to the shear and bending damping."""
+        d = np.array(self._dyn[i])
+        d[:, layout.BSE:layout.BBT + 3] += s * self._stiff[i] / self.coef[0]
+        bt.args.dyn = bt.array(d)
 
     def _launch_advance(self, bt: ShootingBatch, yprev, ok: np.ndarray, at_rest: bool = False) -> None:
         c0, c1, c2, d1 = (bt.wdtype(c) for c in self.coef)
@@ -180,8 +190,18 @@ class Simulator:
                 bt.homotopy(lambda lam: bt.set_tensions(tau_prev + lam * (tau_new - tau_prev)), n_sub, failed, x,
                             newton)
                 failed &= (bt.status.numpy() & layout.CONVERGED) == 0
+            bt.set_tensions(tau[lo:hi])
+            for n_sub in (o.continuation, 4 * o.continuation):
+                if not (failed.any() and n_sub):
+                    break
+                # A lightly damped rod that moves fast: single shooting amplifies start errors,
+                # so the step is reached from a heavily damped copy of itself (which hardly
+                # moves from x(i) and is better conditioned): added damping s K / c0 with
+                # s = 1000^(1 - lam) - 1 going to 0 (lam = 1: the exact step).
+                bt.homotopy(lambda lam: self._set_damping(bt, i, 1e3 ** (1 - lam) - 1), n_sub, failed, x, newton)
+                self._set_damping(bt, i, 0.0)
+                failed &= (bt.status.numpy() & layout.CONVERGED) == 0
             if failed.any():  # last resort: plain Newton (a fresh Jacobian at every iterate) from x(i)
-                bt.set_tensions(tau[lo:hi])
                 bt.solve(x, None, mask=failed, **(newton | dict(broyden=False, max_iter=2 * o.max_iter)))
             status = bt.status.numpy().copy()
             ok = ((status & layout.CONVERGED) != 0) & alive

@@ -74,6 +74,56 @@ def test_random_rods_inside_the_envelope_converge():
     assert np.isfinite(sol.positions[ok]).all() and np.isfinite(sol.base_wrench[ok]).all()
 
 
+def test_random_dynamic_rods_inside_the_envelope_converge():
+    """Seeded sample of the documented dynamics envelope (README); 14,000 samples measured 100%."""
+    env = _envelope_module()
+    row = env.run_dynamics(300, np.random.default_rng(5), **env.DYN_ENVELOPE)
+    assert row["inside"] >= 100
+    assert row["rate"] >= 0.999, row["failures"][:3]
+
+
+def test_lightly_damped_step_is_reached_through_added_damping():
+    """A soft, lightly damped rod (zeta 0.012) swinging under a 1.6 N step: plain Newton loses it
+    at step 4; the damping homotopy steps it to the end, and N = 20 agrees with N = 40."""
+    rob = tw.Robot(length=1.0478, youngs_modulus=2.0295e6, radius=0.02, density=7800.0,
+                   tendons=[tw.Tendon(offset=(0.0, 0.174))], damping_bending=np.full(3, 0.011379))
+    tips = {}
+    for kw in (dict(nodes=20, continuation=0), dict(nodes=20), dict(nodes=40)):
+        sim = tw.Simulator(rob, np.zeros((1, 1)), dt=0.11591, alpha=-0.24344, **kw)
+        tr = sim.simulate(np.full((12, 1), 1.58365), 12)
+        tips[tuple(kw.items())] = (tr.converged[:, 0].all(), tr.tip_position[-1, 0])
+    assert not tips[(("nodes", 20), ("continuation", 0))][0], "the case no longer needs the homotopy"
+    (ok20, tip20), (ok40, tip40) = tips[(("nodes", 20),)], tips[(("nodes", 40),)]
+    assert ok20 and ok40
+    assert tip20[1] > 0.15, "the rod swung towards its tendon"
+    assert np.abs(tip20 - tip40).max() < 2e-5
+
+
+def test_rescued_rod_leaves_its_batch_neighbour_alone():
+    """The damping homotopy runs on the failing rods only: a stiff neighbour in the same batch
+    gets exactly its solo trajectory, and the rescued rod its own."""
+    soft = dict(length=1.0478, youngs_modulus=2.0295e6, radius=0.02, damping_bending=0.011379)
+    stiff = dict(length=0.5, youngs_modulus=190e9, radius=1e-3, damping_bending=0.008)
+    tau = {"soft": 1.58365, "stiff": 2.0}
+    offset = {"soft": (0.0, 0.174), "stiff": (0.01, 0.0)}
+
+    def run(names):
+        rods = [soft if n == "soft" else stiff for n in names]
+        rob = tw.Robot(length=np.array([r["length"] for r in rods]), radius=np.array([r["radius"] for r in rods]),
+                       youngs_modulus=np.array([r["youngs_modulus"] for r in rods]), density=7800.0,
+                       damping_bending=np.array([[r["damping_bending"]] * 3 for r in rods]),
+                       tendons=[tw.Tendon(offset=np.array([offset[n] for n in names]))])
+        sim = tw.Simulator(rob, np.zeros((len(names), 1)), dt=0.11591, alpha=-0.24344, nodes=20)
+        sched = np.array([[[tau[n]]] * 8 for n in names])
+        return sim.simulate(sched, 8)
+
+    both = run(["soft", "stiff"])
+    assert both.converged.all()
+    for b, name in enumerate(("soft", "stiff")):
+        alone = run([name])
+        assert np.abs(both.tip_position[:, b] - alone.tip_position[:, 0]).max() < 1e-12, name
+
+
 def test_float32_precision_loss_is_flagged():
     rob = tw.Robot(length=0.5, tendons=[tw.Tendon(offset=(0.01, 0.0)), tw.Tendon(offset=(0.0, 0.01))],
                    gravity=(0, 0, -9.81))
