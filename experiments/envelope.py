@@ -5,8 +5,10 @@ Statics envelope (dimensionless groups sampled, then turned into SI inputs):
   E in [1e5, 1e12] Pa (log-uniform), L in [0.05, 5] m, slenderness L / r in [50, 500]
   (log-uniform, radius in [2e-4, 2e-2] m), tendon offsets in [1.5, 15] rod radii, 1 to 4
   tendons at random angles, gravity sag rho A g L^3 / EI in [0, 2] in a random direction,
-  nodes N in {10, 20, 50, 200, 2000}, coupled or point model, float64 or float32.
-Beyond it (measured, failures flagged): a full curl (theta up to 2 pi), slenderness 20 to 2000, N = 5.
+  nodes N in {5, 10, 20, 50, 200, 2000} with theta <= N pi / 20 below N = 20 (20 nodes per half
+  turn), coupled or point model, float64 or float32.
+Beyond it (measured, failures flagged): a full curl (theta up to 2 pi), slenderness 20 to 2000,
+N = 5 and 10 up to a half turn.
 Dynamics envelope: the same rods up to a quarter turn, 5 steps from rest under the tension step,
 dt in [1e-3, 1] s (log-uniform), alpha in [-0.48, 0], Bbt giving a first-mode damping ratio zeta
 in [0.01, 1], N in {10, 20, 50}, where the single-shooting amplification
@@ -32,7 +34,7 @@ sys.path[:0] = [str(ROOT / "experiments")]
 import tdcr_warp as tw  # noqa: E402
 from _common import metadata, write_report  # noqa: E402
 
-NODES = (10, 20, 50, 200, 2000)
+NODES = (5, 10, 20, 50, 200, 2000)
 ENVELOPE = dict(bend_max=np.pi, slender=(50.0, 500.0))
 BEYOND = dict(bend_max=2 * np.pi, slender=(20.0, 2000.0))
 K_MAX = 4
@@ -75,7 +77,7 @@ def run_statics(samples: int, rng, precision: str, model: str, nodes: int, regio
     finite = np.isfinite(sol.positions[ok]).all() and np.isfinite(sol.base_wrench[ok]).all()
     reasons = {}
     for reason in np.array(sol.failure_reasons())[~ok]:
-        reasons[reason] = reasons.get(reason, 0) + 1
+        reasons[str(reason)] = reasons.get(str(reason), 0) + 1
     return dict(samples=samples, precision=precision, model=model, nodes=nodes, region=region,
                 converged=float(ok.mean()),
                 failed=int((~ok).sum()), reasons=reasons, converged_all_finite=bool(finite),
@@ -125,7 +127,7 @@ def run_dynamics(samples: int, rng, *, zeta=(0.01, 1.0), dt=(1e-3, 1.0), amp_min
             reason = tw.statics.describe_status(int(tr.status[f, 0]))
             results["reasons"][reason] = results["reasons"].get(reason, 0) + 1
             results["failures"].append(dict(step=f, status=int(tr.status[f, 0]), dt=float(dt[b]),
-                                            alpha=float(alpha[b]), amplification=float(np.exp(amp[b])),
+                                            alpha=float(alpha[b]), amplification_log10=float(amp[b] / np.log(10)),
                                             zeta=float(zeta[b]), theta=float(s["theta"][b]),
                                             slenderness=float(L[b] / rob0.radius[b]),
                                             rod=dict(length=float(L[b]), youngs_modulus=float(rob0.youngs_modulus[b]),
@@ -151,16 +153,22 @@ def main(argv=None) -> int:
     rng = np.random.default_rng(2026)
     rows = []
     # (precision, model, nodes, region, share of the sample count)
-    configs = [("float64", "coupled", 20, ENVELOPE, 1.0), ("float64", "point", 20, ENVELOPE, 0.1),
-               ("float32", "coupled", 20, ENVELOPE, 0.1), ("float64", "coupled", 20, BEYOND, 0.1),
-               ("float64", "coupled", 5, ENVELOPE, 0.1)]
-    configs += [("float64", "coupled", nn, ENVELOPE, {200: 0.01, 2000: 0.001}.get(nn, 0.1)) for nn in NODES if nn != 20]
-    for precision, model, nodes, region, share in configs:
+    # (name, precision, model, nodes, region, share of the sample count); below N = 20 the envelope
+    # keeps 20 nodes per half turn (theta <= N pi / 20): a coarser grid cannot resolve the bend
+    coarse = lambda nn: dict(ENVELOPE, bend_max=np.pi * nn / 20)  # noqa: E731
+    configs = [("envelope", "float64", "coupled", 20, ENVELOPE, 1.0), ("envelope", "float64", "point", 20, ENVELOPE, 0.1),
+               ("envelope", "float32", "coupled", 20, ENVELOPE, 0.1)]
+    configs += [("envelope", "float64", "coupled", nn, coarse(nn) if nn < 20 else ENVELOPE,
+                 {200: 0.01, 2000: 0.001}.get(nn, 0.1)) for nn in NODES if nn != 20]
+    configs += [("beyond: full curl, L/r 20-2000", "float64", "coupled", 20, BEYOND, 0.1),
+                ("beyond: theta up to pi", "float64", "coupled", 5, ENVELOPE, 0.1),
+                ("beyond: theta up to pi", "float64", "coupled", 10, ENVELOPE, 0.1)]
+    for name, precision, model, nodes, region, share in configs:
         samples = max(16, int(n * share))
         row = run_statics(samples, rng, precision, model, nodes, region)
+        row["region"] = name
         rows.append(row)
-        tag = "envelope" if region is ENVELOPE else "beyond  "
-        print(f"statics {tag} {precision} {model:8s} N={nodes:4d}: {row['converged']:.4%} of {samples} converged "
+        print(f"statics {name:30s} {precision} {model:8s} N={nodes:4d}: {row['converged']:.4%} of {samples} converged "
               f"({row['failed']} failed: {row['reasons']}), {samples / row['seconds']:,.0f} rods/s")
     m = 8 if args.smoke else args.dynamic_samples
     dyn = []

@@ -25,7 +25,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from .dynamics import Simulator, _Progress
-from .robot import InputError, Robot
+from .robot import InputError, Robot, require_memory
 from .statics import StaticOptions, solve_static
 
 __all__ = ["ControlRun", "TipController", "allocate", "control_metrics", "run_closed_loop", "sliding_command",
@@ -222,6 +222,7 @@ class ControlRun:
 
 def run_closed_loop(sim: Simulator, controller: TipController, steps: int, *, progress: bool = False) -> ControlRun:
     B, K = sim.B, sim.robot.n_tendons
+    require_memory(steps * B * (8.0 * (12 + K) + 1), f"steps = {steps} for {B} rod(s): the closed-loop record")
     tip = np.zeros((steps + 1, B, 3))
     vel = np.zeros((steps + 1, B, 3))
     S = np.zeros((steps + 1, B, 3))

@@ -19,7 +19,7 @@ import warp as wp
 
 from .kernels import layout
 from .kernels.shooting import make_history_kernel
-from .robot import InputError, Robot
+from .robot import InputError, Robot, require_memory
 from .shooting import (ShootingBatch, check_tensions, host_tables, parallel, rows, scene_features, split,
                        unknown_scales)
 from .statics import StaticOptions, StaticSolution, solve_static
@@ -265,6 +265,8 @@ class Simulator:
                 return sched[:, i]
 
         T, B = steps, self.B
+        require_memory(T * B * (8.0 * (9 + K) + 9) + (T // shapes_every if shapes_every else 0) * B * 24.0
+                       * self.grid.shape[1], f"steps = {T} for {B} rod(s): the trajectory")
         tip = np.zeros((T + 1, B, 3))
         vel = np.zeros((T + 1, B, 3))
         acc = np.zeros((T + 1, B, 3))

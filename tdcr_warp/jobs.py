@@ -160,13 +160,16 @@ def summarize_montecarlo(res: dict, nominal_tip: np.ndarray, out: Path) -> dict:
                               "final_error_percentiles_m": {str(p): float(np.percentile(res["final_error"][cok], p))
                                                             for p in (50, 95, 99)} if cok.any() else None,
                               "failed_runs": int((~cok).sum())}
-    plot_montecarlo(tips, nominal_tip, err, out)
+    if len(tips):
+        plot_montecarlo(tips, nominal_tip, err, out)
     return summary
 
 
 def summarize_workspace(res: dict, robot, out: Path, slices: int = 8) -> dict:
     from .plotting import plot_workspace
     ok = res["ok"].astype(bool)
+    if not ok.any():
+        return {"rods": len(ok), "failed": len(ok), "note": "no rod converged: no workspace to map"}
     tips, tau = res["tip_position"][ok], res["tensions"][ok]
     cc = constant_curvature_tip(robot, tau)
     z = tips[:, 2]

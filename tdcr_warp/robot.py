@@ -9,6 +9,7 @@ rod and the value, so that no bad number reaches a kernel.
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -20,6 +21,18 @@ __all__ = ["InputError", "PointForce", "Robot", "Tendon"]
 
 class InputError(ValueError):
     """Bad user input; the message names the field and the offending value."""
+
+
+def require_memory(nbytes: float, what: str) -> None:
+    """An InputError naming ``what`` if it needs more than half of this machine's memory
+    (rather than an allocation that swaps, hangs or is killed)."""
+    try:
+        total = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (AttributeError, ValueError, OSError):
+        return
+    if nbytes > total / 2:
+        raise InputError(f"{what} needs {nbytes / 2**30:,.1f} GiB, more than half of this machine's "
+                         f"{total / 2**30:.0f} GiB")
 
 
 def _as_field(name: str, value, tail: tuple[int, ...]) -> np.ndarray:

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .robot import InputError, PointForce, Robot, Tendon
+from .robot import InputError, PointForce, Robot, Tendon, require_memory
 from .shooting import check_tensions
 from .statics import StaticOptions
 
@@ -71,9 +71,12 @@ def load_scene(path) -> Scene:
     """Read and validate a TOML scene; every problem is an :class:`InputError`."""
     path = Path(path)
     try:
-        text = path.read_text()
+        text = path.read_text(encoding="utf-8")
     except OSError as e:
         raise InputError(f"cannot read scene {str(path)!r}: {e.strerror or e}") from None
+    except UnicodeDecodeError as e:
+        raise InputError(f"{path}: not UTF-8 text (TOML files are UTF-8): byte {e.start} is {e.object[e.start]:#04x}") \
+            from None
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:
@@ -114,6 +117,12 @@ def _required(t: dict, key: str, where: str):
     if key not in t:
         raise InputError(f"missing key {key!r} in {where}")
     return _numbers(t[key], f"{where}.{key}")
+
+
+def _number(value, where: str) -> float:
+    if not isinstance(value, (int, float)) or isinstance(value, bool):
+        raise InputError(f"{where}: expected a number, got {value!r}")
+    return float(value)
 
 
 def _integer(value, where: str) -> int:
@@ -208,9 +217,11 @@ def scene_from_dict(data: dict) -> Scene:
         steps = _integer(_required(dyn, "steps", "[dynamics]"), "[dynamics].steps")
         if steps < 1:
             raise InputError(f"[dynamics].steps must be >= 1, got {steps}")
-        dt = float(_required(dyn, "dt", "[dynamics]"))
-        alpha = float(_numbers(dyn.get("alpha", 0.0), "[dynamics].alpha"))
+        dt = _number(_required(dyn, "dt", "[dynamics]"), "[dynamics].dt")
+        alpha = _number(dyn.get("alpha", 0.0), "[dynamics].alpha")
         shapes_every = _integer(dyn.get("shapes_every", 0), "[dynamics].shapes_every")
+        require_memory(16.0 * steps * tensions.shape[0] * max(1, tensions.shape[1]),
+                       f"[dynamics].steps = {steps} for {tensions.shape[0]} rod(s): the tension schedule")
         schedule = np.repeat(tensions[:, None, :], steps, axis=1)
         plan = act.get("steps", [])
         if not isinstance(plan, list):

@@ -17,7 +17,7 @@ import warp as wp
 from .kernels import layout
 from .kernels.rod import MODELS, RODS
 from .kernels.shooting import INTEGRATORS
-from .robot import InputError, Robot
+from .robot import InputError, Robot, require_memory
 from .shooting import (PRECISIONS, ShootingBatch, check_tensions, host_tables, parallel, rows, scene_features,
                        split, straight_guess, unknown_scales)
 
@@ -76,25 +76,28 @@ class StaticOptions:
     threads: int | None = None
 
     def __post_init__(self):
-        def integer(v, low):
-            return isinstance(v, int) and not isinstance(v, bool) and v >= low
+        def integer(v, low, high=10**9):
+            return isinstance(v, int) and not isinstance(v, bool) and low <= v <= high
+
+        def one_of(v, options):
+            return isinstance(v, str) and v in options
 
         def positive(v):
             return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v > 0
 
         checks = [
-            ("nodes", integer(self.nodes, 1), "a positive integer"),
-            ("integrator", self.integrator in INTEGRATORS, f"one of {INTEGRATORS}"),
-            ("model", self.model in MODELS + ("constant_curvature",), f"one of {MODELS + ('constant_curvature',)}"),
-            ("rod", self.rod in RODS, f"one of {RODS}"),
+            ("nodes", integer(self.nodes, 1, 100_000), "an integer in [1, 100000]"),
+            ("integrator", one_of(self.integrator, INTEGRATORS), f"one of {INTEGRATORS}"),
+            ("model", one_of(self.model, MODELS + ("constant_curvature",)), f"one of {MODELS + ('constant_curvature',)}"),
+            ("rod", one_of(self.rod, RODS), f"one of {RODS}"),
             ("specialize", isinstance(self.specialize, bool), "true or false"),
             ("error_estimate", isinstance(self.error_estimate, bool), "true or false"),
-            ("precision", self.precision in PRECISIONS, f"one of {tuple(PRECISIONS)}"),
+            ("precision", one_of(self.precision, PRECISIONS), f"one of {tuple(PRECISIONS)}"),
             ("tol", self.tol is None or positive(self.tol), "a positive number"),
-            ("max_iter", integer(self.max_iter, 1), "a positive integer"),
+            ("max_iter", integer(self.max_iter, 1, 10_000), "an integer in [1, 10000]"),
             ("max_step", positive(self.max_step), "a positive number"),
-            ("jacobian", self.jacobian in ("broyden", "newton"), "'broyden' or 'newton'"),
-            ("continuation", integer(self.continuation, 0), "an integer >= 0"),
+            ("jacobian", one_of(self.jacobian, ("broyden", "newton")), "'broyden' or 'newton'"),
+            ("continuation", integer(self.continuation, 0, 10_000), "an integer in [0, 10000]"),
             ("threads", self.threads is None or integer(self.threads, 1), "a positive integer"),
         ]
         for name, ok, what in checks:
@@ -260,6 +263,7 @@ def solve_static(robot: Robot, tensions, *, options: StaticOptions | None = None
         return _constant_curvature(robot, tau, opts)
     B = tau.shape[0]
     dev = wp.get_device(device)
+    require_memory(B * (opts.nodes + 1) * 400.0, f"nodes = {opts.nodes} for {B} rods: the shapes")
     host = host_tables(robot, opts.nodes)
     scales = unknown_scales(robot, B)
     if initial is not None:

@@ -26,8 +26,8 @@ from __future__ import annotations
 
 import copy
 import hashlib
-import itertools
 import json
+import math
 import os
 import re
 import resource
@@ -43,6 +43,7 @@ __all__ = ["SweepSpec", "apply_rows", "chunk_path", "make_samples", "run_sweep"]
 
 _TOKEN = re.compile(r"([A-Za-z_]+)(?:\[(\d+)\])?")
 DISTRIBUTIONS = ("normal", "uniform", "lognormal")
+MAX_ROWS = 10**8  # rows of one sweep (its sample table lives in memory)
 
 
 def parse_field(name: str) -> list:
@@ -77,15 +78,26 @@ class SweepSpec:
             if not isinstance(v, int) or isinstance(v, bool) or v < (1 if name == "chunk" else 0):
                 raise InputError(f"[sweep].{name} must be a {'positive' if name == 'chunk' else 'non-negative'} "
                                  f"integer, got {v!r}")
+        if self.max_total is not None and (isinstance(self.max_total, bool) or not isinstance(self.max_total, (int, float))
+                                           or not self.max_total >= 0):
+            raise InputError(f"[sweep].max_total_tension must be a non-negative number [N], got {self.max_total!r}")
+        grid = sw.get("grid", {})
+        if not isinstance(grid, dict):
+            raise InputError(f"[sweep.grid] must be a table of field = [start, stop, count], got {grid!r}")
         self.grid = []
-        for name, spec in sw.get("grid", {}).items():
+        for name, spec in grid.items():
             parse_field(name)
             if (not isinstance(spec, list) or len(spec) != 3 or not isinstance(spec[2], int) or spec[2] < 1
                     or not all(isinstance(x, (int, float)) for x in spec[:2])):
                 raise InputError(f"[sweep.grid].{name!r}: expected [start, stop, count], got {spec!r}")
+            if spec[2] > MAX_ROWS:
+                raise InputError(f"[sweep.grid].{name!r}: count {spec[2]:,} is more than {MAX_ROWS:,} rows")
             self.grid.append((name, np.linspace(spec[0], spec[1], spec[2])))
         self.uncertainty = []
-        for i, u in enumerate(data.get("uncertainty", [])):
+        entries = data.get("uncertainty", [])
+        if not isinstance(entries, list):
+            raise InputError(f"[[uncertainty]] must be an array of tables, got {entries!r}")
+        for i, u in enumerate(entries):
             where = f"[[uncertainty]] #{i + 1}"
             if not isinstance(u, dict) or set(u) - {"field", "distribution", "params"}:
                 raise InputError(f"{where}: expected keys field, distribution, params, got {u!r}")
@@ -96,19 +108,23 @@ class SweepSpec:
                 raise InputError(f"{where}.params: expected [a, b] with b >= 0, got {p!r}")
             parse_field(u.get("field", ""))
             self.uncertainty.append((u["field"], u["distribution"], (float(p[0]), float(p[1]))))
+        rows = math.prod(len(v) for _, v in self.grid) if self.grid else self.samples
+        if isinstance(rows, int) and rows > MAX_ROWS:
+            raise InputError(f"the sweep has {rows:,} rows, more than {MAX_ROWS:,}: split it into several sweeps")
         if not self.grid and not self.uncertainty:
             raise InputError("a sweep needs [sweep.grid] or [[uncertainty]] entries")
-        if not self.grid and not (isinstance(self.samples, int) and self.samples >= 1):
+        if not self.grid and not (isinstance(self.samples, int) and not isinstance(self.samples, bool)
+                                  and self.samples >= 1):
             raise InputError(f"[sweep].samples must be a positive integer without a grid, got {self.samples!r}")
 
 
 def make_samples(spec: SweepSpec) -> dict[str, np.ndarray]:
     """All M sample rows, field -> (M,) values, from the grid and the seeded random draws."""
     rows: dict[str, np.ndarray] = {}
-    if spec.grid:
-        mesh = list(itertools.product(*[v for _, v in spec.grid]))
-        for j, (name, _) in enumerate(spec.grid):
-            rows[name] = np.array([m[j] for m in mesh])
+    if spec.grid:  # cartesian product, first field slowest
+        mesh = np.meshgrid(*[v for _, v in spec.grid], indexing="ij")
+        for (name, _), m in zip(spec.grid, mesh):
+            rows[name] = m.ravel()
     M = len(next(iter(rows.values()))) if rows else spec.samples
     rng = np.random.default_rng(spec.seed)
     for name, dist, (a, b) in spec.uncertainty:

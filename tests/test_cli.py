@@ -112,7 +112,7 @@ def test_nonconverged_rod_exits_1_with_reason(tmp_path, capsys):
     (("[[2.0, 0.5]]", "[[2.0, -0.5]]"), "[actuation].tensions[0][1] must be a finite number >= 0"),
     (("[[2.0, 0.5]]", "[[2.0, 0.5, 1.0]]"), "expected shape (B, 2) for 2 tendons"),
     (("density = 7800", "density = 7800\nlenght = 0.5"), "unknown key 'lenght' in [robot]"),
-    (("nodes = 20", "nodes = 0"), "solver nodes must be a positive integer, got 0"),
+    (("nodes = 20", "nodes = 0"), "solver nodes must be an integer in [1, 100000], got 0"),
     (("[loads]", "[loads"), "invalid TOML"),
 ])
 def test_bad_scene_exits_2_naming_field_and_value(tmp_path, capsys, edit, message):
@@ -146,7 +146,7 @@ def test_bad_flags_and_out_dir(tmp_path, capsys):
         main(["static", str(scene), "--integrator", "rk5"])
     assert e.value.code == 2 and "invalid choice: 'rk5'" in capsys.readouterr().err
     assert main(["static", str(scene), "--nodes", "0", "--out", str(tmp_path / "o")]) == 2
-    assert "solver nodes must be a positive integer, got 0" in capsys.readouterr().err
+    assert "solver nodes must be an integer in [1, 100000], got 0" in capsys.readouterr().err
     blocker = write(tmp_path, "not a directory", "file")
     assert main(["static", str(scene), "--out", str(blocker / "o")]) == 2
     err = capsys.readouterr().err
