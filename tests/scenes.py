@@ -22,3 +22,19 @@ tensions = {tensions}
 [solver]
 nodes = {nodes}
 """
+
+
+MC_SWEEP = two_tendon_scene("[[1.0, 0.5]]", nodes=16) + """
+[sweep]
+chunk = 16
+seed = 3
+samples = 40
+[[uncertainty]]
+field = "robot.youngs_modulus"
+distribution = "normal"
+params = [190e9, 10e9]
+[[uncertainty]]
+field = "tendons[0].offset[0]"
+distribution = "uniform"
+params = [0.009, 0.011]
+"""

@@ -15,26 +15,13 @@ import pytest
 from tdcr_warp.cli import main
 from tdcr_warp.jobs import SweepJob, static_job
 from tdcr_warp.sweep import run_sweep
-from scenes import two_tendon_scene
+from scenes import MC_SWEEP
 
 ray = pytest.importorskip("ray")
 
 TESTS = Path(__file__).resolve().parent
 
-SWEEP = two_tendon_scene("[[1.0, 0.5]]", nodes=16) + """
-[sweep]
-chunk = 5
-seed = 7
-samples = 23
-[[uncertainty]]
-field = "robot.youngs_modulus"
-distribution = "normal"
-params = [190e9, 10e9]
-[[uncertainty]]
-field = "actuation.tensions[0]"
-distribution = "uniform"
-params = [0.0, 4.0]
-"""
+SWEEP = MC_SWEEP.replace("chunk = 16", "chunk = 5").replace("samples = 40", "samples = 23")
 
 
 class DieOnce:

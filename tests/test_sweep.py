@@ -13,6 +13,7 @@ from tdcr_warp.cli import main
 from tdcr_warp.jobs import constant_curvature_tip, convex_hull_2d, pareto_front, static_job
 from tdcr_warp.scene import scene_from_dict
 from tdcr_warp.sweep import run_sweep
+from scenes import MC_SWEEP as MC
 from scenes import two_tendon_scene
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -27,20 +28,6 @@ chunk = 7
 "robot.youngs_modulus" = [150e9, 200e9, 5]
 """
 
-MC = BASE + """
-[sweep]
-chunk = 16
-seed = 3
-samples = 40
-[[uncertainty]]
-field = "robot.youngs_modulus"
-distribution = "normal"
-params = [190e9, 10e9]
-[[uncertainty]]
-field = "tendons[0].offset[0]"
-distribution = "uniform"
-params = [0.009, 0.011]
-"""
 
 
 def test_sweep_rows_equal_direct_solves(tmp_path):
