@@ -60,15 +60,22 @@ def median_time(data: dict, backend: str, repeats: int) -> float:
     return statistics.median(timed(data, backend) for _ in range(repeats))
 
 
-def overheads(report: dict, chunk_sizes: list[int], rods: int, repeats: int) -> None:
+def local_times(chunk_sizes: list[int], rods: int, repeats: int) -> dict:
+    """1-thread in-process times of the overhead sweeps, taken before Ray starts in this process
+    (a Ray driver's threads would compete for the GIL with the in-process solve)."""
+    times = {size: median_time(scene(rods, size, threads=1), "local", repeats) for size in chunk_sizes}
+    times["fixed"] = median_time(scene(8, 8, threads=1), "local", 2 * repeats + 1)
+    return times
+
+
+def overheads(report: dict, local: dict, chunk_sizes: list[int], rods: int, repeats: int) -> None:
     """Ray's cost per sweep and per chunk, on a 1-worker Ray against 1-thread in-process runs."""
-    fixed = (median_time(scene(8, 8), "ray", 2 * repeats + 1)
-             - median_time(scene(8, 8, threads=1), "local", 2 * repeats + 1))
+    fixed = median_time(scene(8, 8), "ray", 2 * repeats + 1) - local["fixed"]
     report["overhead_per_sweep_ms"] = 1e3 * fixed
     print(f"  Ray overhead per sweep: {1e3 * fixed:.0f} ms")
     for size in chunk_sizes:
         n = rods // size
-        local1 = median_time(scene(rods, size, threads=1), "local", repeats)
+        local1 = local[size]
         remote = median_time(scene(rods, size), "ray", repeats)
         per_chunk = (remote - local1 - fixed) / n
         report["overhead"].append({"chunk": size, "chunks": n, "in_process_s": local1, "ray_s": remote,
@@ -102,6 +109,7 @@ def main(argv=None) -> int:
     t = median_time(sweep, "local", repeats)
     report["throughput"].append({"backend": "in-process", "workers": None, "seconds": t, "rods_per_s": rods / t})
     print(f"in-process: {rods} rods in {t:.2f} s = {rods / t:,.0f} rods/s")
+    local = local_times(chunk_sizes, over_rods, repeats)
     for workers in (1, 2):
         t0 = time.perf_counter()
         ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False)
@@ -115,7 +123,7 @@ def main(argv=None) -> int:
         print(f"ray, {workers} worker(s): {rods} rods in {t:.2f} s = {rods / t:,.0f} rods/s "
               f"(Ray start {start:.1f} s, workers' first chunks {first:.1f} s)")
         if workers == 1:
-            overheads(report, chunk_sizes, over_rods, repeats)
+            overheads(report, local, chunk_sizes, over_rods, repeats)
         ray.shutdown()
     base = report["throughput"][0]["rods_per_s"]
     for row in report["throughput"]:
