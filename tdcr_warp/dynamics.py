@@ -149,6 +149,16 @@ class Simulator:
         self._vel_hist = np.zeros((self.B, 3))  # BDF-alpha history of the tip velocity (0 at rest)
         self._vel_prev = np.zeros((self.B, 3))
 
+    def _retry(self, bt: ShootingBatch, set_load, failed: np.ndarray, x: np.ndarray, newton: dict) -> np.ndarray:
+        """Homotopies along ``set_load`` (continuation steps, then 4x finer) for the failed rods,
+        from x; returns the rods still failing."""
+        for n_sub in (self.opts.continuation, 4 * self.opts.continuation):
+            if not (failed.any() and n_sub):
+                break
+            bt.homotopy(set_load, n_sub, failed, x, newton)
+            failed = failed & ((bt.status.numpy() & layout.CONVERGED) == 0)
+        return failed
+
     def _set_damping(self, bt: ShootingBatch, i: int, s: float) -> None:
         """Chunk i's dynamics table with s K / c0 added to the shear and bending damping."""
         d = np.array(self._dyn[i])
@@ -181,26 +191,20 @@ class Simulator:
             alive = self.alive[lo:hi]
             bt.solve(x_pred, None, mask=alive, keep_jacobian=keep, **newton)
             failed = alive & ((bt.status.numpy() & layout.CONVERGED) == 0)
-            for n_sub in (o.continuation, 4 * o.continuation):  # a finer homotopy if needed
-                if not (failed.any() and n_sub):
-                    break
-                # A large tension change in one step: reach it by a homotopy in the tension
-                # increment, each sub-problem from the last (same time step, same history).
-                tau_prev, tau_new = self._tau_prev[lo:hi], tau[lo:hi]
-                bt.homotopy(lambda lam: bt.set_tensions(tau_prev + lam * (tau_new - tau_prev)), n_sub, failed, x,
-                            newton)
-                failed &= (bt.status.numpy() & layout.CONVERGED) == 0
-            bt.set_tensions(tau[lo:hi])
-            for n_sub in (o.continuation, 4 * o.continuation):
-                if not (failed.any() and n_sub):
-                    break
-                # A lightly damped rod that moves fast: single shooting amplifies start errors,
-                # so the step is reached from a heavily damped copy of itself (which hardly
-                # moves from x(i) and is better conditioned): added damping s K / c0 with
-                # s = 1000^(1 - lam) - 1 going to 0 (lam = 1: the exact step).
-                bt.homotopy(lambda lam: self._set_damping(bt, i, 1e3 ** (1 - lam) - 1), n_sub, failed, x, newton)
+            # A large tension change in one step: reach it by a homotopy in the tension increment,
+            # each sub-problem from the last (same time step, same history).
+            tau_prev, tau_new = self._tau_prev[lo:hi], tau[lo:hi]
+            failed = self._retry(bt, lambda lam: bt.set_tensions(tau_prev + lam * (tau_new - tau_prev)), failed, x,
+                                 newton)
+            if failed.any():
+                # A lightly damped rod that moves fast: single shooting amplifies start errors, so
+                # the step is reached from a heavily damped copy of itself (which hardly moves from
+                # x(i) and is better conditioned): added damping s K / c0 with s = 1000^(1 - lam) - 1
+                # going to 0 (lam = 1: the exact step).
+                bt.set_tensions(tau_new)
+                failed = self._retry(bt, lambda lam: self._set_damping(bt, i, 1e3 ** (1 - lam) - 1), failed, x,
+                                     newton)
                 self._set_damping(bt, i, 0.0)
-                failed &= (bt.status.numpy() & layout.CONVERGED) == 0
             if failed.any():  # last resort: plain Newton (a fresh Jacobian at every iterate) from x(i)
                 bt.solve(x, None, mask=failed, **(newton | dict(broyden=False, max_iter=2 * o.max_iter)))
             status = bt.status.numpy().copy()
