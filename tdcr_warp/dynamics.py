@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 import sys
 import time
+import warnings
 from dataclasses import asdict, dataclass, replace
 
 import numpy as np
@@ -100,6 +101,7 @@ class Simulator:
         self.opts = replace(options or StaticOptions(), **overrides)
         self.dt, self.alpha = float(dt), float(alpha)
         self.coef = bdf_alpha_coefficients(self.dt, self.alpha)
+        self._warn_single_shooting(robot)
         tau = check_tensions(robot, tensions)
         self.B = tau.shape[0]
         self.dev = wp.get_device(device)
@@ -148,6 +150,33 @@ class Simulator:
         self.tip_acceleration = np.zeros((self.B, 3))
         self._vel_hist = np.zeros((self.B, 3))  # BDF-alpha history of the tip velocity (0 at rest)
         self._vel_prev = np.zeros((self.B, 3))
+
+    def _warn_single_shooting(self, robot: Robot) -> None:
+        """Warn where dt is below what single shooting resolves: a start error grows along the rod
+        by exp(L (rho A c0^2 / (EI + c0 Bbt))^(1/4) / sqrt 2), beyond the precision's reach past 1e6
+        (float64) or 1e4 (float32) (README, robustness envelope). Steps there may fail (flagged)."""
+        limit = math.log(1e6 if self.opts.precision == "float64" else 1e4)
+        sec = robot.section()
+        ei = sec["kbt"][:, :2].min(axis=1)
+        bbt = robot.damping_bending[:, :2].min(axis=1)
+        rho_a = robot.density * sec["area"]
+        c_ratio = self.coef[0] * self.dt  # c0 = c_ratio / dt
+
+        def growth(dt):
+            c0 = c_ratio / dt
+            return robot.length * (rho_a * c0**2 / (ei + c0 * bbt)) ** 0.25 / math.sqrt(2)
+
+        g = np.atleast_1d(growth(self.dt))
+        worst = int(np.argmax(g))
+        if g[worst] <= limit:
+            return
+        lo, hi = math.log(self.dt), math.log(self.dt) + 30.0  # growth falls as dt grows: bisect log dt
+        for _ in range(60):
+            mid = 0.5 * (lo + hi)
+            lo, hi = (mid, hi) if np.max(growth(math.exp(mid))) > limit else (lo, mid)
+        warnings.warn(f"dt = {self.dt:g} s is below the single-shooting limit of {int(np.sum(g > limit))} rod(s) "
+                      f"(rod {worst}: amplification 1e{g[worst] / math.log(10):.0f}; dt >= {math.exp(hi):.1e} s "
+                      "stays inside): steps may fail, and are then flagged", stacklevel=3)
 
     def _retry(self, bt: ShootingBatch, set_load, failed: np.ndarray, x: np.ndarray, newton: dict) -> np.ndarray:
         """Homotopies along ``set_load`` (continuation steps, then 4x finer) for the failed rods,

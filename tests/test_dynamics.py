@@ -1,5 +1,7 @@
 """Checks of the batched BDF-alpha dynamics against things nobody tuned."""
 
+import warnings
+
 import numpy as np
 import pytest
 
@@ -149,6 +151,20 @@ def test_extremes_converge_or_flag(case):
     for b in np.flatnonzero(failed):
         assert not good[tr.failed_step[b]:, b].any()
     assert good.all() or failed.any()
+
+
+def test_dt_below_the_single_shooting_limit_warns_and_flags():
+    """The warning's dt bound is where steps start to fail: below it flagged, above it converged."""
+    rob = robot()  # undamped: damping would add c0 Bbt to the bending stiffness and ease the limit
+    with pytest.warns(UserWarning, match="single-shooting limit") as record:
+        below = tw.Simulator(rob, [[0.0] * 4], dt=2e-4, alpha=-0.2, nodes=20)
+    dt_min = float(str(record[0].message).split("dt >= ")[1].split(" s")[0])
+    assert 2e-4 < dt_min < 2e-3
+    assert not below.simulate(np.tile([[1.0, 0, 0, 0]], (5, 1)), 5).converged.all()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        above = tw.Simulator(rob, [[0.0] * 4], dt=1.2 * dt_min, alpha=-0.2, nodes=20)
+    assert above.simulate(np.tile([[1.0, 0, 0, 0]], (5, 1)), 5).converged.all()
 
 
 def test_failed_rod_is_frozen_and_others_go_on():
