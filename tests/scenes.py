@@ -38,3 +38,23 @@ field = "tendons[0].offset[0]"
 distribution = "uniform"
 params = [0.009, 0.011]
 """
+
+GAIN_GRID_SWEEP = two_tendon_scene("[[0.0, 0.0]]", nodes=16) + """
+[dynamics]
+dt = 0.005
+alpha = -0.2
+steps = 100
+damping_bending = [0.008, 0.008, 0.008]
+[control]
+target_tensions = [[1.5, 0.5]]
+method = "boundary_layer"
+gain_c = [20.0, 20.0, 20.0]
+gain_k = [20.0, 20.0, 20.0]
+epsilon = 0.005
+phi = 0.001
+[sweep]
+chunk = 3
+[sweep.grid]
+"control.gain_c[0]" = [10.0, 40.0, 2]
+"control.gain_k[0]" = [10.0, 40.0, 2]
+"""

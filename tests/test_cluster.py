@@ -15,7 +15,7 @@ import pytest
 from tdcr_warp.cli import main
 from tdcr_warp.jobs import SweepJob, static_job
 from tdcr_warp.sweep import run_sweep
-from scenes import MC_SWEEP
+from scenes import GAIN_GRID_SWEEP, MC_SWEEP
 
 ray = pytest.importorskip("ray")
 
@@ -138,3 +138,15 @@ def test_cli_ray_backend_matches_local(cluster, tmp_path):
     assert "positions" not in a.files and b["positions"].shape == (23, 17, 3)
     for k in a.files:
         assert np.array_equal(a[k], b[k]), k
+
+
+def test_gain_grid_on_ray_matches_local(cluster, tmp_path):
+    """Closed-loop control jobs (dynamics + controller in the worker) give the in-process metrics."""
+    scene = tmp_path / "gg.toml"
+    scene.write_text(GAIN_GRID_SWEEP)
+    assert main(["gain-grid", str(scene), "--out", str(tmp_path / "r"), "--quiet", "--backend", "ray"]) == 0
+    assert main(["gain-grid", str(scene), "--out", str(tmp_path / "l"), "--quiet"]) == 0
+    a, b = np.load(tmp_path / "r" / "results.npz"), np.load(tmp_path / "l" / "results.npz")
+    assert set(a.files) == set(b.files) and "settling_time" in a.files
+    for k in a.files:
+        assert np.array_equal(a[k], b[k], equal_nan=True), k

@@ -13,6 +13,7 @@ from tdcr_warp.cli import main
 from tdcr_warp.jobs import constant_curvature_tip, convex_hull_2d, pareto_front, static_job
 from tdcr_warp.scene import scene_from_dict
 from tdcr_warp.sweep import run_sweep
+from scenes import GAIN_GRID_SWEEP
 from scenes import MC_SWEEP as MC
 from scenes import two_tendon_scene
 
@@ -121,25 +122,7 @@ def test_constant_curvature_matches_coupled_single_tendon_without_load():
 
 
 def test_gain_grid_pipeline(tmp_path):
-    text = BASE.replace("tensions = [[1.0, 0.5]]", "tensions = [[0.0, 0.0]]") + """
-[dynamics]
-dt = 0.005
-alpha = -0.2
-steps = 100
-damping_bending = [0.008, 0.008, 0.008]
-[control]
-target_tensions = [[1.5, 0.5]]
-method = "boundary_layer"
-gain_c = [20.0, 20.0, 20.0]
-gain_k = [20.0, 20.0, 20.0]
-epsilon = 0.005
-phi = 0.001
-[sweep]
-chunk = 3
-[sweep.grid]
-"control.gain_c[0]" = [10.0, 40.0, 2]
-"control.gain_k[0]" = [10.0, 40.0, 2]
-"""
+    text = GAIN_GRID_SWEEP
     scene = tmp_path / "gg.toml"
     scene.write_text(text)
     assert main(["gain-grid", str(scene), "--out", str(tmp_path / "o"), "--quiet"]) == 0
