@@ -7,7 +7,9 @@ Statics envelope (dimensionless groups sampled, then turned into SI inputs):
   tendons at random angles, gravity sag rho A g L^3 / EI in [0, 2] in a random direction,
   nodes N in {5, 10, 20, 50, 200, 2000} with theta <= N pi / 20 below N = 20 (20 nodes per half
   turn), coupled or point model, float64 or float32.
-Beyond it (measured, failures flagged): a full curl (theta up to 2 pi), slenderness 20 to 2000,
+Full turn: theta up to 2 pi (N = 40) where theta r_off / L < 0.9, i.e. the tendon stays outside the
+centre of curvature (the coupled model's tendon path degenerates at curvature x offset = 1).
+Beyond it (measured, failures flagged): a full curl without that condition, slenderness 20 to 2000,
 N = 5 and 10 up to a half turn.
 Dynamics envelope: the same rods up to a quarter turn, 5 steps from rest under the tension step,
 dt in [1e-3, 1] s (log-uniform), alpha in [-0.48, 0], Bbt giving a first-mode damping ratio zeta
@@ -38,11 +40,14 @@ from _common import metadata, write_report  # noqa: E402
 NODES = (5, 10, 20, 50, 200, 2000)
 ENVELOPE = dict(bend_max=np.pi, slender=(50.0, 500.0))
 BEYOND = dict(bend_max=2 * np.pi, slender=(20.0, 2000.0))
+FULL_TURN = dict(bend_max=2 * np.pi, slender=(50.0, 500.0), kr_max=0.9)
 K_MAX = 4
 
 
-def sample_envelope(n: int, rng, *, bend_max: float = np.pi, slender=(50.0, 500.0)) -> dict:
-    """n random rods inside the statics envelope: per-rod Robot fields and tensions (n, 4)."""
+def sample_envelope(n: int, rng, *, bend_max: float = np.pi, slender=(50.0, 500.0), kr_max: float | None = None) -> dict:
+    """n random rods inside the statics envelope: per-rod Robot fields and tensions (n, 4).
+    kr_max: also keep the tendons outside the centre of curvature, theta r_off / L < kr_max (the
+    coupled model's tendon path degenerates at curvature x offset = 1)."""
     logu = lambda a, b: np.exp(rng.uniform(np.log(a), np.log(b), n))  # noqa: E731
     E = logu(1e5, 1e12)
     L = logu(0.05, 5.0)
@@ -58,7 +63,7 @@ def sample_envelope(n: int, rng, *, bend_max: float = np.pi, slender=(50.0, 500.
     gdir /= np.linalg.norm(gdir, axis=1, keepdims=True)
     off = r * rng.uniform(1.5, 15.0, n)
     k_used = rng.integers(1, K_MAX + 1, n)
-    theta = rng.uniform(0, bend_max, n)
+    theta = rng.uniform(0, 1, n) * (bend_max if kr_max is None else np.minimum(bend_max, kr_max * L / off))
     share = rng.dirichlet(np.ones(K_MAX), n) * (np.arange(K_MAX)[None] < k_used[:, None])
     share /= share.sum(axis=1, keepdims=True)
     tau = share * (theta * EI / (off * L))[:, None]
@@ -163,7 +168,8 @@ def main(argv=None) -> int:
                ("envelope", "float32", "coupled", 20, ENVELOPE, 0.1)]
     configs += [("envelope", "float64", "coupled", nn, coarse(nn) if nn < 20 else ENVELOPE,
                  {200: 0.01, 2000: 0.001}.get(nn, 0.1)) for nn in NODES if nn != 20]
-    configs += [("beyond: full curl, L/r 20-2000", "float64", "coupled", 20, BEYOND, 0.1),
+    configs += [("full turn, theta r_off / L < 0.9", "float64", "coupled", 40, FULL_TURN, 0.1),
+                ("beyond: full curl, L/r 20-2000", "float64", "coupled", 20, BEYOND, 0.1),
                 ("beyond: theta up to pi", "float64", "coupled", 5, ENVELOPE, 0.1),
                 ("beyond: theta up to pi", "float64", "coupled", 10, ENVELOPE, 0.1)]
     for name, precision, model, nodes, region, share in configs:
