@@ -54,7 +54,7 @@ def ray_chunks(data: dict, job, todo: list[int], rows_of, *, address: str | None
     ``workers`` CPUs (default: all) that it shuts down at the end. One CPU (and
     ``gpus_per_task`` GPUs) per task; at most two tasks per CPU are in flight, so the object
     store holds a bounded number of chunks. ``worker_info`` collects each task's pid and
-    seconds. Closing the generator (or an interrupt) cancels the tasks still in flight.
+    seconds.
     """
     ray = _import_ray()
     if workers is not None and (not isinstance(workers, int) or workers < 1):
@@ -97,7 +97,8 @@ def ray_chunks(data: dict, job, todo: list[int], rows_of, *, address: str | None
                     worker_info.append({"chunk": c, **info})
                 yield c, res
     finally:
-        for ref in pending:
-            ray.cancel(ref, force=True)
+        # Tasks still in flight are not cancelled: ray.cancel racing with a finishing task aborts
+        # the driver in Ray 2.60 ("Tried to complete task that was not pending"). Their results
+        # are dropped with their references, and a driver that exits ends its job's tasks.
         if started:
             ray.shutdown()
