@@ -179,9 +179,9 @@ class Simulator:
                       "stays inside): steps may fail, and are then flagged", stacklevel=3)
 
     def _retry(self, bt: ShootingBatch, set_load, failed: np.ndarray, x: np.ndarray, newton: dict) -> np.ndarray:
-        """Homotopies along ``set_load`` (continuation steps, then 4x finer) for the failed rods,
-        from x; returns the rods still failing."""
-        for n_sub in (self.opts.continuation, 4 * self.opts.continuation):
+        """Homotopies along ``set_load`` (continuation steps, then 4x and 16x finer) for the failed
+        rods, from x; returns the rods still failing."""
+        for n_sub in (self.opts.continuation, 4 * self.opts.continuation, 16 * self.opts.continuation):
             if not (failed.any() and n_sub):
                 break
             bt.homotopy(set_load, n_sub, failed, x, newton)
