@@ -162,21 +162,24 @@ class Simulator:
         rho_a = robot.density * sec["area"]
         c_ratio = self.coef[0] * self.dt  # c0 = c_ratio / dt
 
-        def growth(dt):
-            c0 = c_ratio / dt
-            return robot.length * (rho_a * c0**2 / (ei + c0 * bbt)) ** 0.25 / math.sqrt(2)
+        def growth(dt):  # inf where the numbers overflow (absurdly small dt)
+            c0 = np.float64(c_ratio) / dt
+            with np.errstate(over="ignore", invalid="ignore"):
+                g = robot.length * (rho_a * c0**2 / (ei + c0 * bbt)) ** 0.25 / math.sqrt(2)
+            return np.where(np.isfinite(g), g, np.inf)
 
         g = np.atleast_1d(growth(self.dt))
         worst = int(np.argmax(g))
         if g[worst] <= limit:
             return
-        lo, hi = math.log(self.dt), math.log(self.dt) + 30.0  # growth falls as dt grows: bisect log dt
-        for _ in range(60):
+        lo, hi = math.log(self.dt), max(math.log(self.dt), math.log(1e3))  # growth falls as dt grows
+        for _ in range(100):  # bisect log dt
             mid = 0.5 * (lo + hi)
             lo, hi = (mid, hi) if np.max(growth(math.exp(mid))) > limit else (lo, mid)
+        amp = f"1e{g[worst] / math.log(10):.0f}" if math.isfinite(g[worst]) else "beyond float64"
         warnings.warn(f"dt = {self.dt:g} s is below the single-shooting limit of {int(np.sum(g > limit))} rod(s) "
-                      f"(rod {worst}: amplification 1e{g[worst] / math.log(10):.0f}; dt >= {math.exp(hi):.1e} s "
-                      "stays inside): steps may fail, and are then flagged", stacklevel=3)
+                      f"(rod {worst}: amplification {amp}; dt >= {math.exp(hi):.1e} s stays inside): steps may "
+                      "fail, and are then flagged", stacklevel=3)
 
     def _retry(self, bt: ShootingBatch, set_load, failed: np.ndarray, x: np.ndarray, newton: dict) -> np.ndarray:
         """Homotopies along ``set_load`` (continuation steps, then 4x and 16x finer) for the failed

@@ -165,6 +165,8 @@ def test_dt_below_the_single_shooting_limit_warns_and_flags():
         warnings.simplefilter("error")
         above = tw.Simulator(rob, [[0.0] * 4], dt=1.2 * dt_min, alpha=-0.2, nodes=20)
     assert above.simulate(np.tile([[1.0, 0, 0, 0]], (5, 1)), 5).converged.all()
+    with pytest.warns(UserWarning, match=f"dt >= {dt_min:.1e} s"):  # overflow-proof (the hostile campaign's 1e-300)
+        tw.Simulator(rob, [[0.0] * 4], dt=1e-300, alpha=-0.2, nodes=20)
 
 
 def test_failed_rod_is_frozen_and_others_go_on():
