@@ -129,12 +129,17 @@ def test_interrupted_driver_resumes(cluster, local, tmp_path):
         assert np.array_equal(a[k], b[k]), k
 
 
-def test_cli_ray_backend_matches_local(cluster, tmp_path):
+def run_both(command: str, text: str, tmp_path, local_args=()) -> tuple:
+    """results.npz of ``command`` on the scene text with --backend ray and in process."""
     scene = tmp_path / "s.toml"
-    scene.write_text(SWEEP)
-    assert main(["montecarlo", str(scene), "--out", str(tmp_path / "r"), "--quiet", "--backend", "ray"]) == 0
-    assert main(["montecarlo", str(scene), "--out", str(tmp_path / "l"), "--quiet", "--shapes"]) == 0
-    a, b = np.load(tmp_path / "r" / "results.npz"), np.load(tmp_path / "l" / "results.npz")
+    scene.write_text(text)
+    assert main([command, str(scene), "--out", str(tmp_path / "r"), "--quiet", "--backend", "ray"]) == 0
+    assert main([command, str(scene), "--out", str(tmp_path / "l"), "--quiet", *local_args]) == 0
+    return np.load(tmp_path / "r" / "results.npz"), np.load(tmp_path / "l" / "results.npz")
+
+
+def test_cli_ray_backend_matches_local(cluster, tmp_path):
+    a, b = run_both("montecarlo", SWEEP, tmp_path, ["--shapes"])
     assert "positions" not in a.files and b["positions"].shape == (23, 17, 3)
     for k in a.files:
         assert np.array_equal(a[k], b[k]), k
@@ -142,11 +147,7 @@ def test_cli_ray_backend_matches_local(cluster, tmp_path):
 
 def test_gain_grid_on_ray_matches_local(cluster, tmp_path):
     """Closed-loop control jobs (dynamics + controller in the worker) give the in-process metrics."""
-    scene = tmp_path / "gg.toml"
-    scene.write_text(GAIN_GRID_SWEEP)
-    assert main(["gain-grid", str(scene), "--out", str(tmp_path / "r"), "--quiet", "--backend", "ray"]) == 0
-    assert main(["gain-grid", str(scene), "--out", str(tmp_path / "l"), "--quiet"]) == 0
-    a, b = np.load(tmp_path / "r" / "results.npz"), np.load(tmp_path / "l" / "results.npz")
+    a, b = run_both("gain-grid", GAIN_GRID_SWEEP, tmp_path)
     assert set(a.files) == set(b.files) and "settling_time" in a.files
     for k in a.files:
         assert np.array_equal(a[k], b[k], equal_nan=True), k
