@@ -14,11 +14,9 @@ from __future__ import annotations
 
 import os
 import time
-from dataclasses import replace
 
 from .robot import InputError
-from .scene import scene_from_dict
-from .sweep import apply_rows
+from .sweep import solve_chunk
 
 __all__ = ["SweepError", "ray_chunks"]
 
@@ -35,13 +33,11 @@ def _import_ray():
     return ray
 
 
-def solve_chunk(job, data: dict, rows: dict, threads: int) -> tuple[dict, dict]:
-    """Run in a Ray worker: one chunk's batch through ``job``; returns (results, worker info)."""
+def _task(job, data: dict, rows: dict) -> tuple[dict, dict]:
+    """Run in a Ray worker: one chunk on one solver thread (the cluster schedules the cores);
+    returns (results, worker info)."""
     t0 = time.perf_counter()
-    scene = scene_from_dict(apply_rows(data, rows))
-    if scene.options.threads is None:  # one CPU thread per task: the cluster schedules the cores
-        scene = replace(scene, options=replace(scene.options, threads=threads))
-    res = job(scene)
+    res = solve_chunk(job, data, rows, threads=1)
     return res, {"pid": os.getpid(), "seconds": time.perf_counter() - t0}
 
 
@@ -70,17 +66,17 @@ def ray_chunks(data: dict, job, todo: list[int], rows_of, *, address: str | None
         started = True
     pending: dict = {}
     try:
-        cpus = int(ray.cluster_resources().get("CPU", 1))
-        if gpus_per_task and ray.cluster_resources().get("GPU", 0) < gpus_per_task:
-            raise InputError(f"--gpus-per-task {gpus_per_task}: the Ray cluster has "
-                             f"{ray.cluster_resources().get('GPU', 0)} GPUs")
-        task = ray.remote(solve_chunk).options(num_cpus=1, num_gpus=gpus_per_task, max_retries=max_retries)
+        resources = ray.cluster_resources()
+        cpus = int(resources.get("CPU", 1))
+        if gpus_per_task and resources.get("GPU", 0) < gpus_per_task:
+            raise InputError(f"--gpus-per-task {gpus_per_task}: the Ray cluster has {resources.get('GPU', 0)} GPUs")
+        task = ray.remote(_task).options(num_cpus=1, num_gpus=gpus_per_task, max_retries=max_retries)
         data_ref = ray.put(data)
         queue = list(todo)
         while queue or pending:
             while queue and len(pending) < 2 * cpus:
                 c = queue.pop(0)
-                pending[task.remote(job, data_ref, rows_of(c), 1)] = c
+                pending[task.remote(job, data_ref, rows_of(c))] = c
             ready, _ = ray.wait(list(pending), num_returns=1)
             for ref in ready:
                 c = pending.pop(ref)

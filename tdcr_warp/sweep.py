@@ -32,6 +32,7 @@ import os
 import re
 import resource
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -39,7 +40,7 @@ import numpy as np
 from .robot import InputError
 from .scene import scene_from_dict
 
-__all__ = ["SweepSpec", "apply_rows", "chunk_path", "make_samples", "run_sweep"]
+__all__ = ["SweepSpec", "apply_rows", "make_samples", "run_sweep", "solve_chunk"]
 
 _TOKEN = re.compile(r"([A-Za-z_]+)(?:\[(\d+)\])?")
 DISTRIBUTIONS = ("normal", "uniform", "lognormal")
@@ -200,14 +201,23 @@ def peak_memory_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
-def chunk_path(out_dir, c: int) -> Path:
+def _chunk_path(out_dir, c: int) -> Path:
     return Path(out_dir) / "chunks" / f"chunk_{c:05d}.npz"
+
+
+def solve_chunk(job, data: dict, rows: dict, threads: int | None = None) -> dict:
+    """One chunk: the scene with its sample rows, through ``job``. ``threads`` sets the solver's
+    CPU threads where the scene leaves them open (a Ray task uses the one core it holds)."""
+    scene = scene_from_dict(apply_rows(data, rows))
+    if threads is not None and scene.options.threads is None:
+        scene = replace(scene, options=replace(scene.options, threads=threads))
+    return job(scene)
 
 
 def _local_chunks(data: dict, job, todo: list[int], rows_of):
     """The in-process backend: chunks one after another in this process."""
     for c in todo:
-        yield c, job(scene_from_dict(apply_rows(data, rows_of(c))))
+        yield c, solve_chunk(job, data, rows_of(c))
 
 
 def run_sweep(data: dict, job, out_dir, *, chunk: int | None = None, resume: bool = False,
@@ -256,7 +266,7 @@ def run_sweep(data: dict, job, out_dir, *, chunk: int | None = None, resume: boo
         lo, hi = bounds[c]
         return {k: v[lo:hi] for k, v in rows.items()}
 
-    parts = {c: dict(np.load(chunk_path(out, c))) for c in range(n_chunks) if chunk_path(out, c).exists()}
+    parts = {c: dict(np.load(_chunk_path(out, c))) for c in range(n_chunks) if _chunk_path(out, c).exists()}
     missing = [c for c in range(n_chunks) if c not in parts]
     todo = missing if max_chunks is None else missing[:max_chunks]
     done_rods = sum(hi - lo for c, (lo, hi) in enumerate(bounds) if c in parts)
@@ -271,7 +281,7 @@ def run_sweep(data: dict, job, out_dir, *, chunk: int | None = None, resume: boo
                               gpus_per_task=gpus_per_task)
     try:
         for c, res in finished:
-            _save_npz(chunk_path(out, c), res)
+            _save_npz(_chunk_path(out, c), res)
             parts[c] = res
             lo, hi = bounds[c]
             done_rods += hi - lo
