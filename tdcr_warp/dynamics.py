@@ -101,7 +101,8 @@ class Simulator:
         self.opts = replace(options or StaticOptions(), **overrides)
         self.dt, self.alpha = float(dt), float(alpha)
         self.coef = bdf_alpha_coefficients(self.dt, self.alpha)
-        self._warn_single_shooting(robot)
+        sec = robot.section()
+        self._warn_single_shooting(robot, sec)
         tau = check_tensions(robot, tensions)
         self.B = tau.shape[0]
         self.dev = wp.get_device(device)
@@ -128,10 +129,12 @@ class Simulator:
                                       rod=self.opts.rod, features=features)
                         for lo, hi in self.chunks]
         self._advance = make_history_kernel(self.batches[0].wdtype)
-        sec = robot.section()
+        # host tables for the damping homotopy of failing steps: each chunk's dynamics rows and
+        # its shear/bending stiffness (added as damping s K / c0); the device table is built on demand
         stiff = np.concatenate(np.broadcast_arrays(sec["kse"], sec["kbt"]), axis=1)  # (1|B, 6)
         self._dyn = [np.broadcast_to(rows(dyn, lo, hi), (hi - lo, layout.DYN_WIDTH)) for lo, hi in self.chunks]
         self._stiff = [np.broadcast_to(rows(stiff, lo, hi), (hi - lo, 6)) for lo, hi in self.chunks]
+        self._damped = [None] * len(self.chunks)
         self._yprev = [wp.zeros_like(bt.args.ycur) for bt in self.batches]
         x0 = static.base_wrench * unknown_scales(robot, self.B)
         for (lo, hi), bt, yp in zip(self.chunks, self.batches, self._yprev):
@@ -151,12 +154,11 @@ class Simulator:
         self._vel_hist = np.zeros((self.B, 3))  # BDF-alpha history of the tip velocity (0 at rest)
         self._vel_prev = np.zeros((self.B, 3))
 
-    def _warn_single_shooting(self, robot: Robot) -> None:
+    def _warn_single_shooting(self, robot: Robot, sec: dict) -> None:
         """Warn where dt is below what single shooting resolves: a start error grows along the rod
         by exp(L (rho A c0^2 / (EI + c0 Bbt))^(1/4) / sqrt 2), beyond the precision's reach past 1e6
         (float64) or 1e4 (float32) (README, robustness envelope). Steps there may fail (flagged)."""
         limit = math.log(1e6 if self.opts.precision == "float64" else 1e4)
-        sec = robot.section()
         ei = sec["kbt"][:, :2].min(axis=1)
         bbt = robot.damping_bending[:, :2].min(axis=1)
         rho_a = robot.density * sec["area"]
@@ -191,11 +193,25 @@ class Simulator:
             failed = failed & ((bt.status.numpy() & layout.CONVERGED) == 0)
         return failed
 
-    def _set_damping(self, bt: ShootingBatch, i: int, s: float) -> None:
-        """Chunk i's dynamics table with s K / c0 added to the shear and bending damping."""
-        d = np.array(self._dyn[i])
-        d[:, layout.BSE:layout.BBT + 3] += s * self._stiff[i] / self.coef[0]
-        bt.args.dyn = bt.array(d)
+    def _damping_homotopy(self, bt: ShootingBatch, i: int, failed: np.ndarray, x: np.ndarray,
+                          newton: dict) -> np.ndarray:
+        """Chunk i's failed rods reached from heavily damped copies of themselves: s K / c0 added
+        to the shear and bending damping, s = 1000^(1 - lam) - 1 going to 0 (lam = 1: the exact
+        step). Returns the rods still failing; the chunk's own dynamics table is back in place."""
+        own = bt.args.dyn
+        if self._damped[i] is None:
+            self._damped[i] = bt.array(self._dyn[i])
+        bt.args.dyn = self._damped[i]
+
+        def set_damping(lam):
+            d = np.array(self._dyn[i])
+            d[:, layout.BSE:layout.BBT + 3] += (1e3 ** (1 - lam) - 1) * self._stiff[i] / self.coef[0]
+            bt.put(self._damped[i], d)
+
+        try:
+            return self._retry(bt, set_damping, failed, x, newton)
+        finally:
+            bt.args.dyn = own
 
     def _launch_advance(self, bt: ShootingBatch, yprev, ok: np.ndarray, at_rest: bool = False) -> None:
         c0, c1, c2, d1 = (bt.wdtype(c) for c in self.coef)
@@ -230,13 +246,10 @@ class Simulator:
                                  newton)
             if failed.any():
                 # A lightly damped rod that moves fast: single shooting amplifies start errors, so
-                # the step is reached from a heavily damped copy of itself (which hardly moves from
-                # x(i) and is better conditioned): added damping s K / c0 with s = 1000^(1 - lam) - 1
-                # going to 0 (lam = 1: the exact step).
+                # the step is reached from a heavily damped copy of itself, which hardly moves from
+                # x(i) and is better conditioned.
                 bt.set_tensions(tau_new)
-                failed = self._retry(bt, lambda lam: self._set_damping(bt, i, 1e3 ** (1 - lam) - 1), failed, x,
-                                     newton)
-                self._set_damping(bt, i, 0.0)
+                failed = self._damping_homotopy(bt, i, failed, x, newton)
             if failed.any():  # last resort: plain Newton (a fresh Jacobian at every iterate) from x(i)
                 bt.solve(x, None, mask=failed, **(newton | dict(broyden=False, max_iter=2 * o.max_iter)))
             status = bt.status.numpy().copy()
