@@ -221,7 +221,7 @@ def cmd_control(args) -> int:
 
 
 def _failure_counts(status: np.ndarray, ok: np.ndarray) -> dict[str, int]:
-    from .statics import describe_status
+    from .types import describe_status
     counts: dict[str, int] = {}
     for st in status[~ok]:
         key = describe_status(st)

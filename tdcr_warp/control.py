@@ -24,9 +24,11 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from .dynamics import Simulator, _Progress
+from .dynamics import Simulator
+from .progress import Progress
 from .robot import InputError, Robot, require_memory
-from .statics import StaticOptions, solve_static
+from .statics import solve_static
+from .types import StaticOptions
 
 __all__ = ["ControlRun", "TipController", "allocate", "control_metrics", "run_closed_loop", "sliding_command",
            "static_target"]
@@ -177,13 +179,10 @@ class TipController:
         g = np.broadcast_to(robot.gravity, (B, 3))
         ra = self.rho_a[:, None]
         ac = (dn + ra * g - np.einsum("bij,bj->bi", R, drag * q * np.abs(q))) / ra
-        tendon = np.broadcast_to(robot.pack_tendons(), (B, robot.n_tendons, 5))
+        r_tip = np.broadcast_to(robot.tendon_routing(np.broadcast_to(robot.length, (B,)))[0], (B, robot.n_tendons, 3))
         cols = []
         for i in range(robot.n_tendons):
-            L = np.broadcast_to(robot.length, (B,))
-            ang = tendon[:, i, 3] * L + tendon[:, i, 4]
-            r = np.stack([tendon[:, i, 0] + tendon[:, i, 2] * np.cos(ang),
-                          tendon[:, i, 1] + tendon[:, i, 2] * np.sin(ang), 0 * ang], -1)
+            r = r_tip[:, i]
             ps = np.einsum("bij,bj->bi", R, np.cross(u, r) + v)
             pss = np.einsum("bij,bj->bi", R, np.cross(u, np.cross(u, r)) + np.cross(u, v) + np.cross(du, r) + dv)
             nps = np.linalg.norm(ps, axis=1)[:, None]
@@ -230,7 +229,7 @@ def run_closed_loop(sim: Simulator, controller: TipController, steps: int, *, pr
     conv = np.zeros((steps, B), dtype=bool)
     tip[0], vel[0] = sim.tip_position, sim.tip_velocity
     S[0] = -sim.tip_velocity + controller.C * (controller.target - sim.tip_position)
-    bar = _Progress(steps, B) if progress else None
+    bar = Progress(steps, B) if progress else None
     for i in range(steps):
         taus[i] = controller()
         r = sim.step(taus[i])

@@ -10,20 +10,22 @@ step fails is flagged and frozen at its last good state; the others go on.
 from __future__ import annotations
 
 import math
-import sys
-import time
 import warnings
 from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 import warp as wp
 
+from .build import Tables
+from .homotopy import added_damping, retry, tension_increment
 from .kernels import layout
-from .kernels.shooting import make_history_kernel
-from .robot import InputError, Robot, require_memory
-from .shooting import (ShootingBatch, check_tensions, host_tables, parallel, rows, scene_features, split,
-                       unknown_scales)
-from .statics import StaticOptions, StaticSolution, solve_static
+from .kernels.history import make_history_kernels
+from .parallel import parallel, split
+from .progress import Progress
+from .robot import InputError, Robot, check_tensions, require_memory
+from .solver import Shooting
+from .statics import StaticSolution, solve_static
+from .types import StaticOptions
 
 __all__ = ["Simulator", "StepResult", "Trajectory", "bdf_alpha_coefficients"]
 
@@ -101,11 +103,12 @@ class Simulator:
         self.opts = replace(options or StaticOptions(), **overrides)
         self.dt, self.alpha = float(dt), float(alpha)
         self.coef = bdf_alpha_coefficients(self.dt, self.alpha)
-        sec = robot.section()
-        self._warn_single_shooting(robot, sec)
+        self._warn_single_shooting(robot, robot.section())
         tau = check_tensions(robot, tensions)
         self.B = tau.shape[0]
         self.dev = wp.get_device(device)
+        if self.opts.model == "constant_curvature":
+            raise InputError("dynamics needs a rod model: solver model 'coupled' or 'point'")
         static = initial if initial is not None else solve_static(robot, tau, options=self.opts,
                                                                   device=self.dev)
         if static.base_wrench.shape[0] != self.B:
@@ -114,45 +117,19 @@ class Simulator:
             bad = np.flatnonzero(~static.converged)
             raise InputError(f"the static start did not converge for rods {bad[:10].tolist()} "
                              f"({static.failure_reasons()[bad[0]]})")
-        host = host_tables(robot, self.opts.nodes)
-        if host["grid"].shape[1] != static.s.shape[1]:
+        tables = Tables.of(robot, self.opts.nodes, self.opts.specialize)
+        if tables.grid.shape[1] != static.s.shape[1]:
             raise InputError("initial: its node count differs from the simulation's")
-        self.grid = np.broadcast_to(host["grid"], (self.B, host["grid"].shape[1]))
-        dyn = robot.pack_dynamics()
+        self.grid = np.broadcast_to(tables.grid, (self.B, tables.grid.shape[1]))
+        x0 = static.base_wrench * tables.scale_rows(self.B)
         self.chunks = split(self.B, self.dev, self.opts.threads)
-        if self.opts.model == "constant_curvature":
-            raise InputError("dynamics needs a rod model: solver model 'coupled' or 'point'")
-        features = scene_features(robot, self.opts.specialize)
-        self.batches = [ShootingBatch(host={k: rows(v, lo, hi) for k, v in host.items()}, tau=tau[lo:hi],
-                                      precision=self.opts.precision, integrator=self.opts.integrator,
-                                      model=self.opts.model, device=self.dev, dyn=rows(dyn, lo, hi),
-                                      rod=self.opts.rod, features=features)
-                        for lo, hi in self.chunks]
-        self._advance = make_history_kernel(self.batches[0].wdtype)
-        # host tables for the damping homotopy of failing steps: each chunk's dynamics rows and
-        # its shear/bending stiffness (added as damping s K / c0); the device table is built on demand
-        stiff = np.concatenate(np.broadcast_arrays(sec["kse"], sec["kbt"]), axis=1)  # (1|B, 6)
-        self._dyn = [np.broadcast_to(rows(dyn, lo, hi), (hi - lo, layout.DYN_WIDTH)) for lo, hi in self.chunks]
-        self._stiff = [np.broadcast_to(rows(stiff, lo, hi), (hi - lo, 6)) for lo, hi in self.chunks]
-        self._damped = [None] * len(self.chunks)
-        self._yprev = [wp.zeros_like(bt.args.ycur) for bt in self.batches]
-        x0 = static.base_wrench * unknown_scales(robot, self.B)
-        for (lo, hi), bt, yp in zip(self.chunks, self.batches, self._yprev):
-            bt.evaluate(x0[lo:hi])  # c0 = 0, empty history: the static slots
-            self._launch_advance(bt, yp, np.ones(hi - lo, dtype=np.int32), at_rest=True)
-            bt.args.c0 = bt.wdtype(self.coef[0])
-            bt.x.assign(bt.xt)
-        self._x_prev = [None] * len(self.batches)
+        self.parts = [_Chunk(self, tables, lo, hi, tau[lo:hi], x0[lo:hi], static.tip_position[lo:hi])
+                      for lo, hi in self.chunks]
         self._tau_prev = tau
         self.alive = np.ones(self.B, dtype=bool)
         self.failed_step = np.full(self.B, -1)
         self.steps_done = 0
-        self._have_jacobian = False
-        self.tip_position = static.tip_position.copy()
-        self.tip_velocity = np.zeros((self.B, 3))
-        self.tip_acceleration = np.zeros((self.B, 3))
-        self._vel_hist = np.zeros((self.B, 3))  # BDF-alpha history of the tip velocity (0 at rest)
-        self._vel_prev = np.zeros((self.B, 3))
+        self._read_tips()
 
     def _warn_single_shooting(self, robot: Robot, sec: dict) -> None:
         """Warn where dt is below what single shooting resolves: a start error grows along the rod
@@ -183,116 +160,46 @@ class Simulator:
                       f"(rod {worst}: amplification {amp}; dt >= {math.exp(hi):.1e} s stays inside): steps may "
                       "fail, and are then flagged", stacklevel=3)
 
-    def _retry(self, bt: ShootingBatch, set_load, failed: np.ndarray, x: np.ndarray, newton: dict) -> np.ndarray:
-        """Homotopies along ``set_load`` (continuation steps, then 4x and 16x finer) for the failed
-        rods, from x; returns the rods still failing."""
-        for n_sub in (self.opts.continuation, 4 * self.opts.continuation, 16 * self.opts.continuation):
-            if not (failed.any() and n_sub):
-                break
-            bt.homotopy(set_load, n_sub, failed, x, newton)
-            failed = failed & ((bt.status.numpy() & layout.CONVERGED) == 0)
-        return failed
-
-    def _damping_homotopy(self, bt: ShootingBatch, i: int, failed: np.ndarray, x: np.ndarray,
-                          newton: dict) -> np.ndarray:
-        """Chunk i's failed rods reached from heavily damped copies of themselves: s K / c0 added
-        to the shear and bending damping, s = 1000^(1 - lam) - 1 going to 0 (lam = 1: the exact
-        step). Returns the rods still failing; the chunk's own dynamics table is back in place."""
-        own = bt.args.dyn
-        if self._damped[i] is None:
-            self._damped[i] = bt.array(self._dyn[i])
-        bt.args.dyn = self._damped[i]
-
-        def set_damping(lam):
-            d = np.array(self._dyn[i])
-            d[:, layout.BSE:layout.BBT + 3] += (1e3 ** (1 - lam) - 1) * self._stiff[i] / self.coef[0]
-            bt.put(self._damped[i], d)
-
-        try:
-            return self._retry(bt, set_damping, failed, x, newton)
-        finally:
-            bt.args.dyn = own
-
-    def _launch_advance(self, bt: ShootingBatch, yprev, ok: np.ndarray, at_rest: bool = False) -> None:
-        c0, c1, c2, d1 = (bt.wdtype(c) for c in self.coef)
-        wp.launch(self._advance, dim=bt.args.ycur.shape, device=self.dev,
-                  inputs=[bt.args.ycur, yprev, bt.args.hist, bt.array(ok, np.int32), c0, c1, c2, d1,
-                          int(at_rest)])
-
     def step(self, tensions) -> StepResult:
         """Advance every live rod by dt under ``tensions`` (B, K) [N]."""
         tau = check_tensions(self.robot, tensions)
         if tau.shape[0] != self.B:
             raise InputError(f"tensions: {tau.shape[0]} rows for {self.B} rods")
-        o = self.opts
-        keep = self._have_jacobian
+        first = self.steps_done == 0
 
         def run(i):
-            (lo, hi), bt, yp = self.chunks[i], self.batches[i], self._yprev[i]
-            bt.set_tensions(tau[lo:hi])
-            # Newton start: linear extrapolation of the base wrench over the last two steps
-            # (the shooting residual amplifies a start error by up to ~1e4 at small dt).
-            x = bt.x.numpy().astype(np.float64)
-            x_pred = 2.0 * x - self._x_prev[i] if self.steps_done > 0 else x
-            self._x_prev[i] = x
-            newton = dict(tol=o.tolerance, max_iter=o.max_iter, max_step=o.max_step, broyden=o.jacobian == "broyden")
-            alive = self.alive[lo:hi]
-            bt.solve(x_pred, None, mask=alive, keep_jacobian=keep, **newton)
-            failed = alive & ((bt.status.numpy() & layout.CONVERGED) == 0)
-            # A large tension change in one step: reach it by a homotopy in the tension increment,
-            # each sub-problem from the last (same time step, same history).
-            tau_prev, tau_new = self._tau_prev[lo:hi], tau[lo:hi]
-            failed = self._retry(bt, lambda lam: bt.set_tensions(tau_prev + lam * (tau_new - tau_prev)), failed, x,
-                                 newton)
-            if failed.any():
-                # A lightly damped rod that moves fast: single shooting amplifies start errors, so
-                # the step is reached from a heavily damped copy of itself, which hardly moves from
-                # x(i) and is better conditioned.
-                bt.set_tensions(tau_new)
-                failed = self._damping_homotopy(bt, i, failed, x, newton)
-            if failed.any():  # last resort: plain Newton (a fresh Jacobian at every iterate) from x(i)
-                bt.solve(x, None, mask=failed, **(newton | dict(broyden=False, max_iter=2 * o.max_iter)))
-            status = bt.status.numpy().copy()
-            ok = ((status & layout.CONVERGED) != 0) & alive
-            self._launch_advance(bt, yp, ok.astype(np.int32))
-            p = bt.out.p.numpy()[:, -1].astype(np.float64)
-            R = bt.out.R.numpy()[:, -1].astype(np.float64)
-            q = bt.out.q.numpy()[:, -1].astype(np.float64)
-            return (ok, status, bt.iters.numpy().copy(), bt.resnorm.numpy().astype(np.float64), p,
-                    np.einsum("bij,bj->bi", R, q))
+            lo, hi = self.chunks[i]
+            return self.parts[i].step(tau[lo:hi], self._tau_prev[lo:hi], self.alive[lo:hi], first)
 
         parts = parallel(run, list(range(len(self.chunks))))
         self._tau_prev = tau
-        self._have_jacobian = True
-        ok, status, iters, resid, p, v = (np.concatenate(x) for x in zip(*parts))
+        ok, status, iters, resid = (np.concatenate(x) for x in zip(*parts))
         newly_failed = self.alive & ~ok
         self.failed_step[newly_failed] = self.steps_done
         self.alive &= ok
         self.steps_done += 1
-        c0, c1, c2, d1 = self.coef
-        acc = c0 * v + self._vel_hist
-        okb = ok[:, None]
-        self.tip_position = np.where(okb, p, self.tip_position)
-        self._vel_hist = np.where(okb, c1 * v + c2 * self._vel_prev + d1 * acc, self._vel_hist)
-        self._vel_prev = np.where(okb, v, self._vel_prev)
-        self.tip_velocity = np.where(okb, v, self.tip_velocity)
-        self.tip_acceleration = np.where(okb, acc, self.tip_acceleration)
+        self._read_tips()
         resid = np.where(ok, resid, np.inf)
         return StepResult(self.tip_position.copy(), self.tip_velocity.copy(), self.tip_acceleration.copy(),
                           ok, iters, resid, status)
+
+    def _read_tips(self) -> None:
+        tips = [c.tips() for c in self.parts]
+        self.tip_position, self.tip_velocity, self.tip_acceleration = (
+            np.concatenate([t[j] for t in tips]) for j in range(3))
 
     def tip_state(self) -> dict[str, np.ndarray]:
         """State at the last two nodes of the last evaluation: rotations (B, 2, 3, 3), n, m
         (B, 2, 3) world frame, q (B, 2, 3) body frame, and the last interval h (B,) [m]."""
         f64 = np.float64
-        cat = {name: np.concatenate([getattr(bt.out, name).numpy()[:, -2:].astype(f64) for bt in self.batches])
+        cat = {name: np.concatenate([getattr(c.sh.nodes, name).numpy()[:, -2:].astype(f64) for c in self.parts])
                for name in ("R", "n", "m", "q")}
         cat["h"] = self.grid[:, -1] - self.grid[:, -2]
         return cat
 
     def shapes(self) -> np.ndarray:
         """Current positions along s, (B, N+1, 3) [m] (frozen rods: their last trial)."""
-        return np.concatenate([bt.out.p.numpy().astype(np.float64) for bt in self.batches])
+        return np.concatenate([c.sh.nodes.p.numpy().astype(np.float64) for c in self.parts])
 
     def simulate(self, schedule, steps: int, *, shapes_every: int = 0, progress: bool = False) -> Trajectory:
         """Open loop: ``schedule`` is (B, steps, K) or (steps, K) [N], or a callable of the
@@ -329,7 +236,7 @@ class Simulator:
         if shapes_every:
             shape_steps.append(0)
             shapes.append(self.shapes())
-        bar = _Progress(T, B) if progress else None
+        bar = Progress(T, B) if progress else None
         for i in range(T):
             taus[i] = check_tensions(self.robot, get(i), name=f"schedule step {i}")
             r = self.step(taus[i])
@@ -342,7 +249,7 @@ class Simulator:
                 bar.update(i + 1, int((~self.alive).sum()))
         if bar:
             bar.close()
-        n1 = self.batches[0].out.p.shape[1]
+        n1 = self.grid.shape[1]
         return Trajectory(time=self.dt * np.arange(T + 1), tip_position=tip, tip_velocity=vel,
                           tip_acceleration=acc, tensions=taus, converged=conv, iterations=iters,
                           residual=resid, status=status, failed_step=self.failed_step.copy(),
@@ -350,27 +257,83 @@ class Simulator:
                           positions=np.array(shapes) if shapes else np.zeros((0, B, n1, 3)))
 
 
-class _Progress:
-    """A one-line progress bar on stderr: done/total units, rod-units/s, ETA, failed rods.
-    ``start``: units already done before this run (resumed), left out of the rate."""
+class _Chunk:
+    """The rods lo:hi of a Simulator: their shooting problem and, on the device, the BDF-alpha
+    history of every slot, the previous solution, the tip kinematics and the step outcome."""
 
-    def __init__(self, total: int, rods: int, unit: str = "steps", rate_unit: str = "rod-steps/s", start: int = 0):
-        self.total, self.rods, self.t0, self.start = total, rods, time.perf_counter(), start
-        self.unit, self.rate_unit = unit, rate_unit
-        self.shown = -1.0
+    def __init__(self, sim: Simulator, tables: Tables, lo: int, hi: int, tau: np.ndarray, x0: np.ndarray,
+                 tip: np.ndarray):
+        o = sim.opts
+        self.sim = sim
+        self.sh = sh = Shooting(tables, lo, hi, tau, precision=o.precision, integrator=o.integrator,
+                                model=o.model, device=sim.dev, dynamic=True, rod=o.rod)
+        self.hk = make_history_kernels(sh.dev.wdtype)
+        b, d = sh.b, sim.dev
+        self.dyn = np.broadcast_to(tables.rows("dyn", lo, hi), (b, tables.dyn.shape[1]))
+        self.stiffness = np.broadcast_to(tables.rows("stiffness", lo, hi), (b, 6))
+        self.damped = None  # device table of the damping homotopy, made on first use
+        self.yprev = wp.zeros_like(sh.step.ycur)
+        self.x_prev = wp.zeros_like(sh.newton.x)
+        self.x_start = wp.zeros_like(sh.newton.x)
+        self.ok = wp.ones(b, dtype=int, device=d)
+        self.tip = [wp.array(tip, dtype=wp.vec3d, device=d)] + [wp.zeros(b, dtype=wp.vec3d, device=d)
+                                                                for _ in range(4)]
+        self.newton = dict(tol=o.tolerance, max_iter=o.max_iter, max_step=o.max_step,
+                           broyden=o.jacobian == "broyden")
+        sh.evaluate(x0)  # c0 = 0, empty history: the static slots
+        self._advance(at_rest=True)
+        sh.step.c0 = sh.dev.wdtype(sim.coef[0])
+        wp.copy(sh.newton.x, sh.x_in)
 
-    def update(self, done: int, failed: int, note: str = "") -> None:
-        now = time.perf_counter()
-        if done < self.total and now - self.shown < 0.2:
-            return
-        self.shown = now
-        el = now - self.t0
-        rate = (done - self.start) * self.rods / el if el > 0 else 0.0
-        eta = el / (done - self.start) * (self.total - done) if done > self.start else 0.0
-        filled = int(30 * done / self.total)
-        sys.stderr.write(f"\r[{'#' * filled}{'.' * (30 - filled)}] {done}/{self.total} {self.unit}{note} "
-                         f"{rate:,.0f} {self.rate_unit} ETA {eta:5.1f} s failed {failed}")
-        sys.stderr.flush()
+    def _advance(self, at_rest: bool = False) -> None:
+        sh, dev = self.sh, self.sim.dev
+        c0, c1, c2, d1 = (sh.dev.wdtype(c) for c in self.sim.coef)
+        wp.launch(self.hk.advance, dim=sh.step.ycur.shape, device=dev,
+                  inputs=[sh.step.ycur, self.yprev, sh.step.hist, self.ok, c0, c1, c2, d1, int(at_rest)])
 
-    def close(self) -> None:
-        sys.stderr.write("\n")
+    def tips(self):
+        return [a.numpy().astype(np.float64) for a in self.tip[:3]]
+
+    def step(self, tau: np.ndarray, tau_prev: np.ndarray, alive: np.ndarray, first: bool):
+        sh, o, newton = self.sh, self.sim.opts, self.newton
+        sh.set_tensions(tau)
+        wp.launch(self.hk.predict, dim=sh.b, device=self.sim.dev,
+                  inputs=[sh.newton.x, self.x_prev, self.x_start, int(not first)])
+        sh.solve(self.x_start, mask=None if alive.all() else alive, fresh_jacobian=first, **newton)
+        failed = alive & ~sh.converged()
+        if failed.any():
+            # A large tension change in one step: reach it by a homotopy in the tension increment,
+            # each sub-problem from the last (same time step, same history).
+            failed = retry(sh, tension_increment(sh, tau_prev, tau), failed, self.x_prev, newton, o.continuation)
+        if failed.any():
+            # A lightly damped rod that moves fast: single shooting amplifies start errors, so
+            # the step is reached from a heavily damped copy of itself, which hardly moves from
+            # x(i) and is better conditioned.
+            sh.set_tensions(tau)
+            failed = self._damping_homotopy(failed)
+        if failed.any():  # last resort: plain Newton (a fresh Jacobian at every iterate) from x(i)
+            sh.solve(self.x_prev, mask=failed, **(newton | dict(broyden=False, max_iter=2 * o.max_iter)))
+        status = sh.status().copy()
+        ok = ((status & layout.CONVERGED) != 0) & alive
+        sh.dev.put(self.ok, ok)
+        self._advance()
+        c0, c1, c2, d1 = self.sim.coef
+        out = sh.nodes
+        wp.launch(self.hk.tip_kinematics, dim=sh.b, device=self.sim.dev,
+                  inputs=[out.p, out.R, out.q, self.ok, c0, c1, c2, d1, *self.tip])
+        return ok, status, sh.newton.iters.numpy().copy(), sh.newton.resnorm.numpy().astype(np.float64)
+
+    def _damping_homotopy(self, failed: np.ndarray) -> np.ndarray:
+        """The failed rods reached from heavily damped copies of themselves: s K / c0 added to
+        the shear and bending damping, s = 1000^(1 - lam) - 1 going to 0 (lam = 1: the exact
+        step). Returns the rods still failing; the rods' own dynamics table is back in place."""
+        sh = self.sh
+        own = sh.model.dyn
+        if self.damped is None:
+            self.damped = sh.dev.array(self.dyn)
+        sh.model.dyn = self.damped
+        try:
+            return retry(sh, added_damping(sh, self.damped, self.dyn, self.stiffness, self.sim.coef[0]), failed,
+                         self.x_prev, self.newton, self.sim.opts.continuation)
+        finally:
+            sh.model.dyn = own

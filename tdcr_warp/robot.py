@@ -14,9 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .kernels import layout
-
-__all__ = ["InputError", "PointForce", "Robot", "Tendon"]
+__all__ = ["InputError", "PointForce", "Robot", "Tendon", "check_tensions"]
 
 
 class InputError(ValueError):
@@ -50,6 +48,7 @@ def _as_field(name: str, value, tail: tuple[int, ...]) -> np.ndarray:
     if bad.any():
         idx = np.argwhere(bad)[0]
         raise InputError(f"{name}: non-finite value {float(arr[tuple(idx)])!r} (rod {idx[0]})")
+    arr.flags.writeable = False  # a Robot is immutable: solvers cache what they build from it
     return arr
 
 
@@ -171,6 +170,7 @@ class Robot:
             fields[f"point_forces[{j}].force"] = pf.force
         object.__setattr__(self, "batch_size", _batch(fields))
         with np.errstate(all="ignore"):
+            object.__setattr__(self, "_section", self._compute_section())
             sec = self.section()
             derived = {"bending stiffness E I (from youngs_modulus, radius)": sec["kbt"][:, 0],
                        "axial stiffness E A (from youngs_modulus, radius)": sec["kse"][:, 2],
@@ -199,49 +199,44 @@ class Robot:
         return _stack_cols(cols)
 
     def section(self) -> dict[str, np.ndarray]:
-        """Cross-section and stiffness per rod (leading dim 1 or B): A, I, Kse, Kbt."""
+        """Cross-section and stiffness per rod (leading dim 1 or B): A, I, Kse, Kbt (computed
+        once; the arrays are read-only)."""
+        return self._section
+
+    def _compute_section(self) -> dict[str, np.ndarray]:
         E, nu, r = self.youngs_modulus, self.poisson_ratio, self.radius
         G = E / (2.0 * (1.0 + nu))
         A = math.pi * r**2
         Ixx = math.pi * r**4 / 4.0
         kse = np.stack(np.broadcast_arrays(G * A, G * A, E * A), axis=-1)
         kbt = np.stack(np.broadcast_arrays(E * Ixx, E * Ixx, G * 2.0 * Ixx), axis=-1)
-        return {"area": A, "inertia": Ixx, "kse": kse, "kbt": kbt}
+        sec = {"area": A, "inertia": Ixx, "kse": kse, "kbt": kbt}
+        for v in sec.values():
+            v.flags.writeable = False
+        return sec
 
-    def pack_rod(self) -> np.ndarray:
-        """Per-rod parameter rows, shape (1 or B, layout.ROD_WIDTH), see kernels/layout.py."""
-        sec = self.section()
-        fe = (self.density * sec["area"])[:, None] * self.gravity
-        cols = [sec["kse"], sec["kbt"], self.precurvature, fe, self.tip_force, self.tip_moment,
-                self.length[:, None]]
-        b = max(c.shape[0] for c in cols)
-        out = np.concatenate([np.broadcast_to(c, (b, c.shape[1])) for c in cols], axis=1)
-        assert out.shape[1] == layout.ROD_WIDTH
-        return out
-
-    def pack_dynamics(self) -> np.ndarray:
-        """Dynamics rows, shape (1 or B, layout.DYN_WIDTH), see kernels/layout.py."""
-        sec = self.section()
-        rho_a = (self.density * sec["area"])[:, None]
-        rho_j = (self.density * sec["inertia"])[:, None] * np.array([1.0, 1.0, 2.0])
-        cols = [rho_a, rho_j, self.damping_shear, self.damping_bending, self.drag]
-        b = max(c.shape[0] for c in cols)
-        out = np.concatenate([np.broadcast_to(c, (b, c.shape[1])) for c in cols], axis=1)
-        assert out.shape[1] == layout.DYN_WIDTH
-        return out
-
-    def pack_tendons(self) -> np.ndarray:
-        """Tendon routing rows, shape (1 or B, K, layout.TENDON_WIDTH)."""
-        if not self.tendons:
-            return np.zeros((1, 0, layout.TENDON_WIDTH))
+    def tendon_routing(self, s) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Body-frame routing of every tendon at arc length s [m] (a number, or (B,) or (B, K)):
+        r(s) and its first two arc-length derivatives, each (1 or B, K, 3)."""
+        K = self.n_tendons
+        if K == 0:
+            z = np.zeros((1, 0, 3))
+            return z, z, z
         lengths = self.tendon_lengths()
-        rows = []
+        cols = []
         for k, t in enumerate(self.tendons):
             w = 2.0 * math.pi * t.turns / lengths[:, k]
-            parts = np.broadcast_arrays(t.offset[:, 0], t.offset[:, 1], t.helix_radius, w, t.phase)
-            rows.append(np.stack(parts, axis=-1))
-        b = max(r.shape[0] for r in rows)
-        return np.stack([np.broadcast_to(r, (b, layout.TENDON_WIDTH)) for r in rows], axis=1)
+            cols.append(np.broadcast_arrays(t.offset[:, 0], t.offset[:, 1], t.helix_radius, w, t.phase))
+        b = max(np.broadcast(*c).shape[0] for c in cols)
+        x0, y0, a, w, ph = (np.stack([np.broadcast_to(c[i], (b,)) for c in cols], axis=1) for i in range(5))
+        s = np.asarray(s, dtype=np.float64)
+        s = s[:, None] if s.ndim == 1 else s
+        ang = w * s + ph
+        c, sn, z = np.cos(ang), np.sin(ang), np.zeros_like(ang)
+        r = np.stack([x0 + a * c, y0 + a * sn, z], axis=-1)
+        dr = np.stack([-a * w * sn, a * w * c, z], axis=-1)
+        ddr = np.stack([-a * w * w * c, -a * w * w * sn, z], axis=-1)
+        return r, dr, ddr
 
     def pack_point_forces(self) -> tuple[np.ndarray, np.ndarray]:
         """Point-force arc lengths (1 or B, P) [m] and forces (1 or B, P, 3) [N]."""
@@ -256,3 +251,26 @@ class Robot:
 def _stack_cols(cols: list[np.ndarray]) -> np.ndarray:
     b = max(c.shape[0] for c in cols)
     return np.stack([np.broadcast_to(c, (b,)) for c in cols], axis=1)
+
+
+def check_tensions(robot: Robot, tensions, name: str = "tensions") -> np.ndarray:
+    """Tensions as a (B, K) float64 array, each finite and >= 0, or an InputError."""
+    try:
+        tau = np.array(tensions, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InputError(f"{name}: expected a B x K array of numbers, got {tensions!r}") from None
+    K = robot.n_tendons
+    if tau.ndim == 1 and tau.shape[0] == K:
+        tau = tau[None]
+    if tau.ndim != 2 or tau.shape[1] != K:
+        raise InputError(f"{name}: expected shape (B, {K}) for {K} tendons, got {tau.shape}")
+    if robot.batch_size > 1 and tau.shape[0] == 1:
+        tau = np.repeat(tau, robot.batch_size, axis=0)
+    if robot.batch_size > 1 and tau.shape[0] != robot.batch_size:
+        raise InputError(f"{name}: {tau.shape[0]} rows for a robot batch of {robot.batch_size} rods")
+    bad = ~np.isfinite(tau) | (tau < 0)
+    if bad.any():
+        b, k = np.argwhere(bad)[0]
+        raise InputError(f"{name}[{b}][{k}] must be a finite number >= 0 (tendons only pull), "
+                         f"got {float(tau[b, k])!r}")
+    return tau

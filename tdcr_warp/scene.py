@@ -22,9 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .robot import InputError, PointForce, Robot, Tendon, require_memory
-from .shooting import check_tensions
-from .statics import StaticOptions
+from .robot import InputError, PointForce, Robot, Tendon, check_tensions, require_memory
+from .types import StaticOptions
 
 __all__ = ["DynamicsSpec", "Scene", "load_scene", "scene_from_dict"]
 

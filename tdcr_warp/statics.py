@@ -1,122 +1,32 @@
 """Batched static shooting: ``solve_static(robot, tensions)`` for B rods at once.
 
-Newton on the 6 base unknowns (n(0), m(0)) per rod, with a forward-difference Jacobian
-built by parallel probe integrations, Broyden updates between rebuilds, backtracking on the
-residual norm, a bounded step, and a per-rod convergence mask. On the CPU the batch is split
-over threads (Warp releases the GIL while a CPU kernel runs).
+Newton on the 6 base unknowns (n(0), m(0)) per rod (kernels/newton.py), with a
+forward-difference Jacobian, Broyden updates between rebuilds, backtracking on the residual
+norm, a bounded step and a per-rod verdict; a per-rod load continuation where the start is
+far from the answer (tdcr_warp/homotopy.py). On the CPU the batch is split over threads
+(Warp releases the GIL while a CPU kernel runs). Repeated solves of the same robot object and
+batch shape reuse its device arrays (``StaticProblem``).
 """
 
 from __future__ import annotations
 
-import math
+import threading
+import weakref
+from collections import OrderedDict
 from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 import warp as wp
 
+from .build import Tables, straight_guess
+from .homotopy import continuation_steps, load_continuation
 from .kernels import layout
-from .kernels.rod import MODELS, RODS
-from .kernels.shooting import INTEGRATORS
-from .robot import InputError, Robot, require_memory
-from .shooting import (PRECISIONS, ShootingBatch, check_tensions, host_tables, parallel, rows, scene_features,
-                       split, straight_guess, unknown_scales)
+from .parallel import parallel, split
+from .robot import InputError, Robot, check_tensions, require_memory
+from .solver import Shooting
+from .types import StaticOptions, describe_status
 
-__all__ = ["StaticOptions", "StaticSolution", "describe_status", "solve_static"]
-
-
-PRESETS = {
-    "fast": dict(integrator="rk4", nodes=10, rod="kirchhoff"),
-    "balanced": dict(integrator="rk4", nodes=20, rod="cosserat"),
-    "accurate": dict(integrator="rk4", nodes=50, rod="cosserat", tol=1e-12),
-}
-
-
-def describe_status(status: int) -> str:
-    """The status bits of one rod in words."""
-    names = [v for k, v in layout.STATUS_NAMES.items() if int(status) & k]
-    return ", ".join(names) if names else "not converged"
-
-
-@dataclass(frozen=True)
-class StaticOptions:
-    """What selects code and stopping rules (host only).
-
-    nodes: integration intervals along s (N; shapes have N + 1 nodes). integrator: "rk4",
-    "midpoint" or "euler". model: "coupled" (distributed tendon loads), "point" (termination
-    loads only) or "constant_curvature" (closed form: straight tendons ending at the tip, no
-    external load). rod: "cosserat" (shear, extension) or "kirchhoff" (inextensible,
-    unshearable). specialize: compile out the physics the batch does not contain (gravity,
-    point loads, helical routing, drag). error_estimate: also solve with N/2 nodes and report
-    per rod ``tip_error_estimate`` = 2 |tip(N) - tip(N/2)| / (2^p - 1) [m] (p: the integrator's
-    order; a Richardson estimate of the discretisation error with a safety factor 2; it does
-    not measure model error such as Kirchhoff vs Cosserat).
-    precision: "float64" or "float32". tol: Newton stops when the scaled residual, expressed
-    as a tip-displacement-like error L |r| [m], is below it (None: 1e-10 m in float64,
-    1e-6 m in float32). max_iter: Newton iterations per rod. max_step: bound on a Newton
-    step in scaled unknowns. jacobian: "broyden" (finite differences once, then rank-one
-    updates; a rebuild when a step fails) or "newton" (finite differences at every
-    iterate). continuation: rods that fail from the straight-rod start, or whose load would
-    bend a straight rod by more than ~1.5 rad (where other equilibria exist), are solved by a
-    homotopy in tensions and loads, scaled by 1/c, ..., 1, each step from the last, with
-    c = max(continuation, load, sqrt(axial load L^2 / EI)) steps (0: off). threads: CPU threads (None: all cores; CUDA uses one).
-    """
-
-    nodes: int = 50
-    integrator: str = "rk4"
-    model: str = "coupled"
-    precision: str = "float64"
-    tol: float | None = None
-    max_iter: int = 50
-    max_step: float = 10.0
-    jacobian: str = "broyden"
-    continuation: int = 8
-    rod: str = "cosserat"
-    specialize: bool = True
-    error_estimate: bool = False
-    threads: int | None = None
-
-    def __post_init__(self):
-        def integer(v, low, high=10**9):
-            return isinstance(v, int) and not isinstance(v, bool) and low <= v <= high
-
-        def one_of(v, options):
-            return isinstance(v, str) and v in options
-
-        def positive(v):
-            return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v > 0
-
-        checks = [
-            ("nodes", integer(self.nodes, 1, 100_000), "an integer in [1, 100000]"),
-            ("integrator", one_of(self.integrator, INTEGRATORS), f"one of {INTEGRATORS}"),
-            ("model", one_of(self.model, MODELS + ("constant_curvature",)), f"one of {MODELS + ('constant_curvature',)}"),
-            ("rod", one_of(self.rod, RODS), f"one of {RODS}"),
-            ("specialize", isinstance(self.specialize, bool), "true or false"),
-            ("error_estimate", isinstance(self.error_estimate, bool), "true or false"),
-            ("precision", one_of(self.precision, PRECISIONS), f"one of {tuple(PRECISIONS)}"),
-            ("tol", self.tol is None or positive(self.tol), "a positive number"),
-            ("max_iter", integer(self.max_iter, 1, 10_000), "an integer in [1, 10000]"),
-            ("max_step", positive(self.max_step), "a positive number"),
-            ("jacobian", one_of(self.jacobian, ("broyden", "newton")), "'broyden' or 'newton'"),
-            ("continuation", integer(self.continuation, 0, 10_000), "an integer in [0, 10000]"),
-            ("threads", self.threads is None or integer(self.threads, 1), "a positive integer"),
-        ]
-        for name, ok, what in checks:
-            if not ok:
-                raise InputError(f"solver {name} must be {what}, got {getattr(self, name)!r}")
-
-    @classmethod
-    def preset(cls, name: str, **overrides) -> "StaticOptions":
-        """Named settings chosen from experiments/speed_accuracy.py (see README for the
-        measured tip errors): "fast", "balanced" (the defaults at N = 20) or "accurate"."""
-        if name not in PRESETS:
-            raise InputError(f"solver preset must be one of {tuple(PRESETS)}, got {name!r}")
-        return cls(**(PRESETS[name] | overrides))
-
-    @property
-    def tolerance(self) -> float:
-        if self.tol is not None:
-            return self.tol
-        return 1e-10 if self.precision == "float64" else 1e-6
+__all__ = ["StaticOptions", "StaticProblem", "StaticSolution", "solve_static"]
 
 
 @dataclass
@@ -165,35 +75,6 @@ class StaticSolution:
     def to_npz(self, path) -> None:
         arrays = {k: v for k, v in asdict(self).items() if isinstance(v, np.ndarray)}
         np.savez_compressed(path, **arrays)
-
-
-LARGE_LOAD = 1.5  # scaled bending load of the straight-rod start: |m(0)| L / EI + |n_xy(0)| L^2 / EI
-MAX_CONTINUATION = 64
-
-
-def _continuation(bt: ShootingBatch, host: dict, tau: np.ndarray, x_full: np.ndarray, mask: np.ndarray,
-                  steps: int, newton: dict) -> None:
-    """Homotopy for the rods in ``mask``: tensions and external loads scaled by lam, from the
-    straight-rod start scaled likewise (it is linear in the loads). Iterations and
-    integrations add up over the path."""
-    rod0, pf0 = host["rod"], host["pforce"]
-
-    def set_load(lam):
-        rod = rod0.copy()
-        for c in (layout.FE, layout.TIP_F, layout.TIP_M):
-            rod[:, c:c + 3] *= lam
-        bt.put(bt.args.rod, rod)
-        if pf0.shape[1]:
-            bt.put(bt.args.pforce, pf0 * lam)
-        bt.set_tensions(tau * lam)
-
-    iters, shots = bt.homotopy(set_load, steps, mask, x_full * (1 / steps), newton)
-    set_load(1.0)
-    touched = shots > 0
-    it, sh = bt.iters.numpy().copy(), bt.n_shoot.numpy().copy()
-    it[touched], sh[touched] = iters[touched], shots[touched]
-    bt.put(bt.iters, it)
-    bt.put(bt.n_shoot, sh)
 
 
 def _constant_curvature(robot: Robot, tau: np.ndarray, opts: StaticOptions) -> StaticSolution:
@@ -247,6 +128,82 @@ def _constant_curvature(robot: Robot, tau: np.ndarray, opts: StaticOptions) -> S
                           tip_error_estimate=zeros if opts.error_estimate else None)
 
 
+class StaticProblem:
+    """The device arrays of one robot batch at one shape (B rods, options, device), built
+    once and reused by every solve of that shape: the tables, and per CPU thread the
+    Model / Control / State / Work of its rods (tdcr_warp.solver.Shooting)."""
+
+    def __init__(self, robot: Robot, B: int, opts: StaticOptions, device):
+        self.robot, self.B, self.opts, self.device = robot, B, opts, device
+        self.tables = Tables.of(robot, opts.nodes, opts.specialize)
+        self.chunks = split(B, device, opts.threads)
+        K = robot.n_tendons
+        self.solvers = [Shooting(self.tables, lo, hi, np.zeros((hi - lo, K)), precision=opts.precision,
+                                 integrator=opts.integrator, model=opts.model, device=device, rod=opts.rod)
+                        for lo, hi in self.chunks]
+        self.lock = threading.Lock()
+
+    def solve(self, tau: np.ndarray, initial: StaticSolution | None) -> StaticSolution:
+        opts, tables, B = self.opts, self.tables, self.B
+        scales = tables.scale_rows(B)
+        if initial is not None:
+            if initial.base_wrench.shape[0] != B:
+                raise InputError(f"initial: warm start has {initial.base_wrench.shape[0]} rods, batch has {B}")
+            x0, J0 = initial.base_wrench * scales, initial.jacobian
+        else:
+            x0, J0 = straight_guess(self.robot, tau) * scales, None
+        newton = dict(tol=opts.tolerance, max_iter=opts.max_iter, max_step=opts.max_step,
+                      broyden=opts.jacobian == "broyden")
+
+        def run(i):
+            lo, hi = self.chunks[i]
+            sh = self.solvers[i]
+            sh.set_tensions(tau[lo:hi])
+            if J0 is not None:
+                sh.dev.put(sh.newton.J, J0[lo:hi])
+            sh.solve(x0[lo:hi], fresh_jacobian=J0 is None, **newton)
+            if opts.continuation and initial is None:
+                finite, large, steps = continuation_steps(x0[lo:hi], opts.continuation)
+                redo = finite & (~sh.converged() | large)
+                if redo.any():
+                    load_continuation(sh, tables.rows("rod", lo, hi), tables.rows("pforce", lo, hi), tau[lo:hi],
+                                      x0[lo:hi], redo, steps, newton)
+            return sh.results()
+
+        parts = parallel(run, list(range(len(self.chunks))))
+        out = parts[0] if len(parts) == 1 else {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+        out["base_wrench"] = out.pop("x") / scales
+        grid = tables.grid
+        s = np.broadcast_to(grid, (B, grid.shape[1])).astype(np.float64)
+        return StaticSolution(s=s, options=opts, **out)
+
+
+CACHE_SIZE = 8
+CACHE_NODE_RODS = 1 << 17  # cache problems up to B (N + 1) of this (~20 MB of device arrays each)
+_cache: OrderedDict = OrderedDict()
+_cache_lock = threading.Lock()
+
+
+def _problem(robot: Robot, B: int, opts: StaticOptions, device) -> tuple[StaticProblem, bool]:
+    """A cached problem of this robot object and shape (locked for the caller), or a new one.
+    Returns (problem, cached)."""
+    if B * (opts.nodes + 1) > CACHE_NODE_RODS:
+        return StaticProblem(robot, B, opts, device), False
+    key = (id(robot), B, replace(opts, error_estimate=False), device.alias)
+    with _cache_lock:
+        hit = _cache.get(key)
+        if hit is not None and hit[0]() is robot and hit[1].lock.acquire(blocking=False):
+            _cache.move_to_end(key)
+            return hit[1], True
+    problem = StaticProblem(robot, B, opts, device)
+    problem.lock.acquire()
+    with _cache_lock:
+        _cache[key] = (weakref.ref(robot), problem)
+        while len(_cache) > CACHE_SIZE:
+            _cache.popitem(last=False)
+    return problem, True
+
+
 def solve_static(robot: Robot, tensions, *, options: StaticOptions | None = None,
                  device: str | None = None, initial: StaticSolution | None = None,
                  **overrides) -> StaticSolution:
@@ -264,51 +221,12 @@ def solve_static(robot: Robot, tensions, *, options: StaticOptions | None = None
     B = tau.shape[0]
     dev = wp.get_device(device)
     require_memory(B * (opts.nodes + 1) * 400.0, f"nodes = {opts.nodes} for {B} rods: the shapes")
-    host = host_tables(robot, opts.nodes)
-    scales = unknown_scales(robot, B)
-    if initial is not None:
-        if initial.base_wrench.shape[0] != B:
-            raise InputError(f"initial: warm start has {initial.base_wrench.shape[0]} rods, batch has {B}")
-        x0 = initial.base_wrench * scales
-        J0 = initial.jacobian
-    else:
-        x0 = straight_guess(robot, tau) * scales
-        J0 = None
-    chunks = split(B, dev, opts.threads)
-    features = scene_features(robot, opts.specialize)
-    batches = [ShootingBatch(host={k: rows(v, lo, hi) for k, v in host.items()}, tau=tau[lo:hi],
-                             precision=opts.precision, integrator=opts.integrator, model=opts.model,
-                             device=dev, rod=opts.rod, features=features) for lo, hi in chunks]
-
-    def run(i):
-        lo, hi = chunks[i]
-        newton = dict(tol=opts.tolerance, max_iter=opts.max_iter, max_step=opts.max_step,
-                      broyden=opts.jacobian == "broyden")
-        bt = batches[i]
-        bt.solve(x0[lo:hi], None if J0 is None else J0[lo:hi], **newton)
-        if opts.continuation and initial is None:
-            # Beyond ~1.5 rad of linear bending, Newton from the straight rod may land on another
-            # equilibrium (a looped cantilever under a large tip force): follow the load from zero.
-            with np.errstate(all="ignore"):  # absurd inputs overflow: those rods are flagged anyway
-                load = np.linalg.norm(x0[lo:hi, 3:], axis=1) + np.linalg.norm(x0[lo:hi, :2], axis=1)
-                compression = np.sqrt(np.abs(x0[lo:hi, 2]))
-            finite = np.isfinite(load) & np.isfinite(compression)
-            redo = finite & (((bt.status.numpy() & layout.CONVERGED) == 0) | (load > LARGE_LOAD))
-            if redo.any():
-                # steps grow with the bending load and with the axial compression measured in
-                # Euler loads (sqrt(P L^2 / EI)): slender rods under large tendon loads need more
-                hard = np.maximum(load, compression)[redo].max()
-                steps = int(np.clip(np.ceil(hard), opts.continuation, MAX_CONTINUATION))
-                _continuation(bt, {k: rows(v, lo, hi) for k, v in host.items()}, tau[lo:hi], x0[lo:hi], redo,
-                              steps, newton)
-        return bt.results()
-
-    parts = parallel(run, list(range(len(chunks))))
-    out = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
-    out["base_wrench"] = out.pop("x") / scales
-    grid = host["grid"]
-    s = np.broadcast_to(grid, (B, grid.shape[1])).astype(np.float64)
-    sol = StaticSolution(s=s, options=opts, **out)
+    problem, locked = _problem(robot, B, opts, dev)
+    try:
+        sol = problem.solve(tau, initial)
+    finally:
+        if locked:
+            problem.lock.release()
     if opts.error_estimate:
         coarse = solve_static(robot, tau, options=replace(opts, nodes=max(1, opts.nodes // 2), error_estimate=False),
                               device=device, initial=sol)
@@ -316,6 +234,3 @@ def solve_static(robot: Robot, tensions, *, options: StaticOptions | None = None
         est = 2.0 * np.linalg.norm(sol.tip_position - coarse.tip_position, axis=1) / (2**order - 1)
         sol.tip_error_estimate = np.where(coarse.converged, est, np.inf)
     return sol
-
-
-

@@ -235,7 +235,7 @@ def run_sweep(data: dict, job, out_dir, *, chunk: int | None = None, resume: boo
     stopped it early (resume later, with either backend). ``resume`` reuses the chunks of an
     identical earlier sweep; ``meta`` (JSON-able) joins the manifest that guards it.
     """
-    from .dynamics import _Progress
+    from .progress import Progress
 
     if backend not in ("local", "ray"):
         raise InputError(f"backend must be 'local' or 'ray', got {backend!r}")
@@ -270,7 +270,7 @@ def run_sweep(data: dict, job, out_dir, *, chunk: int | None = None, resume: boo
     missing = [c for c in range(n_chunks) if c not in parts]
     todo = missing if max_chunks is None else missing[:max_chunks]
     done_rods = sum(hi - lo for c, (lo, hi) in enumerate(bounds) if c in parts)
-    bar = _Progress(M, 1, unit="rods", rate_unit="rods/s", start=done_rods) if progress else None
+    bar = Progress(M, 1, unit="rods", rate_unit="rods/s", start=done_rods) if progress else None
     failed = int(sum((~p["ok"].astype(bool)).sum() for p in parts.values()))
     t0 = time.perf_counter()
     if backend == "local":

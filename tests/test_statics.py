@@ -117,12 +117,10 @@ def test_global_balance_coupled():
     sec = rob.section()
     v0 = n0 / sec["kse"][0] + [0, 0, 1]
     u0 = m0 / sec["kbt"][0]
-    tendon = rob.pack_tendons()[0]
+    r_base, dr_base, _ = rob.tendon_routing(0.0)
     pull_f, pull_m = np.zeros(3), np.zeros(3)
     for k in range(3):
-        x0, y0, a, w, ph = tendon[k]
-        r = np.array([x0 + a * np.cos(ph), y0 + a * np.sin(ph), 0])
-        dr = np.array([-a * w * np.sin(ph), a * w * np.cos(ph), 0])
+        r, dr = r_base[0, k], dr_base[0, k]
         pb = np.cross(u0, r) + dr + v0
         t = pb / np.linalg.norm(pb)
         pull_f += tau[0, k] * t

@@ -1,0 +1,89 @@
+"""BDF-alpha bookkeeping of dynamics on the device: the history of every slot, the tip
+kinematics, and the Newton start of the next step.
+
+BDF-alpha [T19]: y_t = c0 y + y_h, y_h = c1 y(i) + c2 y(i-1) + d1 y_t(i).
+"""
+
+import functools
+from types import SimpleNamespace
+
+import warp as wp
+
+
+@functools.cache
+def make_history_kernels(dtype, nu: int = 6):
+    vec3 = wp.types.vector(3, dtype)
+    mat33 = wp.types.matrix((3, 3), dtype)
+    vecx = wp.types.vector(nu, dtype)
+
+    @wp.kernel(module="unique", enable_backward=False)
+    def advance_history(
+        ycur: wp.array3d(dtype=vec3),
+        yprev: wp.array3d(dtype=vec3),
+        hist: wp.array3d(dtype=vec3),
+        ok: wp.array(dtype=int),
+        c0: dtype,
+        c1: dtype,
+        c2: dtype,
+        d1: dtype,
+        at_rest: int,
+    ):
+        """Per (rod, slot, quantity) after a converged step: y_h <- c1 y(i) + c2 y(i-1) + d1 y_t(i),
+        y(i-1) <- y(i). at_rest = 1 starts from equilibrium: y(i-1) = y(i) and y_t(i) = 0, so
+        that the next step sees y_t = c0 y + y_h = 0 at the same state."""
+        b, sl, c = wp.tid()
+        if ok[b] == 0:
+            return
+        y = ycur[b, sl, c]
+        yt = c0 * y + hist[b, sl, c]
+        yp = yprev[b, sl, c]
+        if at_rest != 0:
+            yt = vec3()
+            yp = y
+        hist[b, sl, c] = c1 * y + c2 * yp + d1 * yt
+        yprev[b, sl, c] = y
+
+    @wp.kernel(module="unique", enable_backward=False)
+    def tip_kinematics(
+        p: wp.array2d(dtype=vec3),
+        R: wp.array2d(dtype=mat33),
+        q: wp.array2d(dtype=vec3),
+        ok: wp.array(dtype=int),
+        c0: wp.float64,
+        c1: wp.float64,
+        c2: wp.float64,
+        d1: wp.float64,
+        tip_p: wp.array(dtype=wp.vec3d),
+        tip_v: wp.array(dtype=wp.vec3d),
+        tip_a: wp.array(dtype=wp.vec3d),
+        vel_hist: wp.array(dtype=wp.vec3d),
+        vel_prev: wp.array(dtype=wp.vec3d),
+    ):
+        """Tip position, velocity R q and acceleration (BDF-alpha of the velocity) of the rods
+        whose step converged, in float64; the others keep their last values."""
+        b = wp.tid()
+        if ok[b] == 0:
+            return
+        k = p.shape[1] - 1
+        v = wp.vec3d(R[b, k] * q[b, k])
+        acc = c0 * v + vel_hist[b]
+        vel_hist[b] = c1 * v + c2 * vel_prev[b] + d1 * acc
+        vel_prev[b] = v
+        tip_p[b] = wp.vec3d(p[b, k])
+        tip_v[b] = v
+        tip_a[b] = acc
+
+    @wp.kernel(module="unique", enable_backward=False)
+    def predict(x: wp.array(dtype=vecx), x_prev: wp.array(dtype=vecx), x_start: wp.array(dtype=vecx),
+                extrapolate: int):
+        """Newton start of the next step: the linear extrapolation 2 x(i) - x(i-1) (the shooting
+        residual amplifies a start error by up to ~1e4 at small dt); x(i-1) <- x(i)."""
+        b = wp.tid()
+        xi = x[b]
+        if extrapolate != 0:
+            x_start[b] = dtype(2.0) * xi - x_prev[b]
+        else:
+            x_start[b] = xi
+        x_prev[b] = xi
+
+    return SimpleNamespace(advance=advance_history, tip_kinematics=tip_kinematics, predict=predict)

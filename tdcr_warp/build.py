@@ -1,0 +1,277 @@
+"""From a host ``Robot`` to the device: the only host file that knows the column layout of
+the packed tables (kernels/layout.py).
+
+``Tables`` are the packed per-rod tables of a robot at one node count (host NumPy, leading
+dimension 1 or B), computed once. ``put_model`` uploads the rows of one chunk of rods as a
+``Model`` (read-only in kernels), ``make_control`` the tensions, ``make_state`` the per-node
+solution and ``make_work`` the Newton scratch; all are allocated once per batch shape and
+reused across solves and time steps.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import warp as wp
+
+from .kernels import layout
+from .kernels.rod import ALL, SLOT_WIDTH, Features
+from .robot import InputError, Robot
+
+PRECISIONS = {"float64": (wp.float64, np.float64), "float32": (wp.float32, np.float32)}
+
+
+def make_grid(length: np.ndarray, tendon_len: np.ndarray, point_s: np.ndarray, nodes: int):
+    """Arc-length nodes holding every tendon termination and point load.
+
+    Returns grid (Bg, N+1), term_node (Bg, K), point_node (Bg, P); Bg is 1 unless one of the
+    inputs varies per rod. Intervals are shared out over the segments in proportion to
+    their length (at least one each).
+    """
+    K, P = tendon_len.shape[1], point_s.shape[1]
+    bg = max(length.shape[0], tendon_len.shape[0], point_s.shape[0])
+    keys = np.concatenate([np.broadcast_to(length[:, None], (bg, 1)),
+                           np.broadcast_to(tendon_len, (bg, K)),
+                           np.broadcast_to(point_s, (bg, P))], axis=1)
+    uniq, inverse = np.unique(keys, axis=0, return_inverse=True)
+    rows = [_grid_row(row[0], row[1:], nodes) for row in uniq]
+    grid = np.stack([r[0] for r in rows])[inverse.ravel()]
+    marks = np.stack([r[1] for r in rows])[inverse.ravel()]
+    return grid, marks[:, :K].astype(np.int32), marks[:, K:].astype(np.int32)
+
+
+def _grid_row(L: float, breaks: np.ndarray, nodes: int):
+    tol = 1e-12 * L
+    pts = np.unique(np.concatenate([breaks, [L]]))
+    pts = pts[np.concatenate([[True], np.diff(pts) > tol])]
+    pts = pts[pts > tol]
+    if len(pts) > nodes:
+        raise InputError(f"solver nodes = {nodes} is fewer than the {len(pts)} segments set by "
+                         "tendon terminations and point loads")
+    seg = np.diff(np.concatenate([[0.0], pts]))
+    ideal = nodes * seg / L
+    count = np.maximum(1, np.floor(ideal)).astype(int)
+    while count.sum() < nodes:
+        count[np.argmax(ideal - count)] += 1
+    while count.sum() > nodes:
+        count[np.argmax(np.where(count > 1, count - ideal, -np.inf))] -= 1
+    starts = np.concatenate([[0.0], pts[:-1]])
+    grid = np.concatenate([np.linspace(a, b, c, endpoint=False) for a, b, c in zip(starts, pts, count)]
+                          + [[L]])
+    node_of = np.concatenate([[0], np.cumsum(count)])
+    ends = np.concatenate([[0.0], pts])
+    marks = np.array([node_of[np.argmin(np.abs(ends - b))] for b in breaks], dtype=np.int64)
+    return grid, marks
+
+
+def _columns(cols: list[np.ndarray], width: int) -> np.ndarray:
+    b = max(c.shape[0] for c in cols)
+    out = np.concatenate([np.broadcast_to(c, (b, c.shape[1])) for c in cols], axis=1)
+    assert out.shape[1] == width
+    return out
+
+
+def pack_rod(robot: Robot) -> np.ndarray:
+    """Per-rod parameter rows, shape (1 or B, layout.ROD_WIDTH)."""
+    sec = robot.section()
+    fe = (robot.density * sec["area"])[:, None] * robot.gravity
+    return _columns([sec["kse"], sec["kbt"], robot.precurvature, fe, robot.tip_force, robot.tip_moment,
+                     robot.length[:, None]], layout.ROD_WIDTH)
+
+
+def pack_dynamics(robot: Robot) -> np.ndarray:
+    """Dynamics rows, shape (1 or B, layout.DYN_WIDTH)."""
+    sec = robot.section()
+    rho_a = (robot.density * sec["area"])[:, None]
+    rho_j = (robot.density * sec["inertia"])[:, None] * np.array([1.0, 1.0, 2.0])
+    return _columns([rho_a, rho_j, robot.damping_shear, robot.damping_bending, robot.drag], layout.DYN_WIDTH)
+
+
+def pack_tendons(robot: Robot) -> np.ndarray:
+    """Tendon routing rows, shape (1 or B, K, layout.TENDON_WIDTH)."""
+    if not robot.tendons:
+        return np.zeros((1, 0, layout.TENDON_WIDTH))
+    lengths = robot.tendon_lengths()
+    rows = []
+    for k, t in enumerate(robot.tendons):
+        w = 2.0 * np.pi * t.turns / lengths[:, k]
+        parts = np.broadcast_arrays(t.offset[:, 0], t.offset[:, 1], t.helix_radius, w, t.phase)
+        rows.append(np.stack(parts, axis=-1))
+    b = max(r.shape[0] for r in rows)
+    return np.stack([np.broadcast_to(r, (b, layout.TENDON_WIDTH)) for r in rows], axis=1)
+
+
+def scene_features(robot: Robot, tendon: np.ndarray, specialize: bool) -> Features:
+    """The physics this batch contains (all of it when ``specialize`` is off)."""
+    if not specialize:
+        return ALL
+    return Features(gravity=bool(np.any(robot.gravity != 0) and np.any(robot.density > 0)),
+                    point_loads=len(robot.point_forces) > 0,
+                    helix=bool(np.any(tendon[..., layout.T_A] != 0)),
+                    drag=bool(np.any(robot.drag != 0)))
+
+
+@dataclass(frozen=True)
+class Tables:
+    """The packed host tables of one robot at one node count (leading dimension 1 or B).
+
+    rod, dyn, tendon, pforce: see kernels/layout.py; grid (1|B, N+1) [m]; term_node (1|B, K)
+    and pnode (1|B, P): node indices; scales (1|B, 6): factors from [n(0), m(0)] to the
+    scaled unknowns [L^2/EI, L/EI]; stiffness (1|B, 6): the Kse and Kbt diagonals.
+    """
+
+    rod: np.ndarray
+    dyn: np.ndarray
+    tendon: np.ndarray
+    grid: np.ndarray
+    term_node: np.ndarray
+    pforce: np.ndarray
+    pnode: np.ndarray
+    scales: np.ndarray
+    stiffness: np.ndarray
+    features: Features
+
+    @classmethod
+    def of(cls, robot: Robot, nodes: int, specialize: bool = True) -> "Tables":
+        tendon_len = robot.tendon_lengths() if robot.tendons else np.zeros((1, 0))
+        point_s, point_f = robot.pack_point_forces()
+        grid, term_node, point_node = make_grid(robot.length, tendon_len, point_s, nodes)
+        sec = robot.section()
+        L = robot.length
+        EI = sec["kbt"][:, 0]
+        f, m = np.broadcast_arrays(L**2 / EI, L / EI)
+        tendon = pack_tendons(robot)
+        return cls(rod=pack_rod(robot), dyn=pack_dynamics(robot), tendon=tendon, grid=grid, term_node=term_node,
+                   pforce=point_f, pnode=point_node,
+                   scales=np.concatenate([np.repeat(f[:, None], 3, 1), np.repeat(m[:, None], 3, 1)], 1),
+                   stiffness=np.concatenate(np.broadcast_arrays(sec["kse"], sec["kbt"]), axis=1),
+                   features=scene_features(robot, tendon, specialize))
+
+    def rows(self, name: str, lo: int, hi: int) -> np.ndarray:
+        """Rows lo:hi of table ``name``; a shared table (leading 1) stays as it is."""
+        t = getattr(self, name)
+        return t[lo:hi] if t.shape[0] > 1 else t
+
+    def scale_rows(self, B: int) -> np.ndarray:
+        return np.broadcast_to(self.scales, (B, 6))
+
+
+def straight_guess(robot: Robot, tensions: np.ndarray) -> np.ndarray:
+    """n(0), m(0) (B, 6) of the straight rod under the same loads: the Newton start."""
+    B = tensions.shape[0]
+    e3 = np.array([0.0, 0.0, 1.0])
+    L = np.broadcast_to(robot.length, (B,))
+    sec = robot.section()
+    fe = np.broadcast_to((robot.density * sec["area"])[:, None] * robot.gravity, (B, 3))
+    tip_f = np.broadcast_to(robot.tip_force, (B, 3))
+    n0 = tip_f + fe * L[:, None]
+    m0 = (np.broadcast_to(robot.tip_moment, (B, 3)) + np.cross(L[:, None] * e3, tip_f)
+          + np.cross(0.5 * (L**2)[:, None] * e3, fe))
+    if robot.tendons:
+        tl = np.broadcast_to(robot.tendon_lengths(), (B, robot.n_tendons))
+        r, dr, _ = robot.tendon_routing(tl)
+        r, dr = np.broadcast_to(r, (B, robot.n_tendons, 3)), np.broadcast_to(dr, (B, robot.n_tendons, 3))
+        for k in range(robot.n_tendons):
+            t = dr[:, k] + e3
+            F = -tensions[:, k, None] * t / np.linalg.norm(t, axis=-1, keepdims=True)
+            n0 = n0 + F
+            m0 = m0 + np.cross(tl[:, k, None] * e3 + r[:, k], F)
+    if robot.point_forces:
+        ps, pf = robot.pack_point_forces()
+        ps = np.broadcast_to(ps, (B, ps.shape[1]))
+        pf = np.broadcast_to(pf, (B,) + pf.shape[1:])
+        n0 = n0 + pf.sum(axis=1)
+        m0 = m0 + np.cross(ps[..., None] * e3, pf).sum(axis=1)
+    return np.concatenate([n0, m0], axis=1)
+
+
+def _pad(a: np.ndarray, shape_min: tuple) -> np.ndarray:
+    """Kernels take at least one column; empty tendon/point tables become zero-filled."""
+    if a.shape[1] > 0:
+        return a
+    return np.zeros((a.shape[0],) + shape_min, dtype=a.dtype)
+
+
+class Device:
+    """Uploads to one device at one precision."""
+
+    def __init__(self, device, precision: str):
+        self.device = device
+        self.wdtype, self.ndtype = PRECISIONS[precision]
+
+    def array(self, a: np.ndarray, ndtype=None) -> wp.array:
+        a = np.ascontiguousarray(a, dtype=ndtype or self.ndtype)
+        return wp.array(a, dtype=wp.dtype_from_numpy(a.dtype), device=self.device)
+
+    def put(self, dest: wp.array, values: np.ndarray) -> None:
+        """Copy host values into an existing device array (of any vector/matrix dtype)."""
+        scalar = np.int32 if dest.dtype in (wp.int32, int) else self.ndtype
+        dest.assign(np.ascontiguousarray(values, dtype=scalar))
+
+
+def put_model(kern, dev: Device, tables: Tables, lo: int, hi: int):
+    """The kernel ``Model`` of rods lo:hi (shared tables stay shared)."""
+    md = kern.Model()
+    md.rod = dev.array(tables.rows("rod", lo, hi))
+    md.dyn = dev.array(tables.rows("dyn", lo, hi))
+    md.tendon = dev.array(_pad(tables.rows("tendon", lo, hi), (1, layout.TENDON_WIDTH)))
+    md.grid = dev.array(tables.rows("grid", lo, hi))
+    md.term_node = dev.array(_pad(tables.rows("term_node", lo, hi), (1,)), np.int32)
+    md.pforce = dev.array(_pad(tables.rows("pforce", lo, hi), (1, 3)))
+    md.pnode = dev.array(_pad(tables.rows("pnode", lo, hi), (1,)), np.int32)
+    md.n_tendons = tables.tendon.shape[1]
+    md.n_points = tables.pforce.shape[1]
+    return md
+
+
+def make_control(kern, dev: Device, tau: np.ndarray):
+    """The kernel ``Control``: tensions (b, K) [N]."""
+    ct = kern.Control()
+    ct.tau = dev.array(_pad(tau, (1,)))
+    return ct
+
+
+def set_tensions(dev: Device, ct, tau: np.ndarray) -> None:
+    dev.put(ct.tau, _pad(tau, (1,)))
+
+
+def make_step(kern, dev: Device, b: int, n_slots: int, dynamic: bool):
+    """The kernel ``Step``: the BDF-alpha constant and the history of every slot (dynamics)."""
+    sp = kern.Step()
+    sp.c0 = dev.wdtype(0.0)
+    if dynamic:
+        sp.hist = wp.zeros((b, n_slots, SLOT_WIDTH), dtype=kern.vec3, device=dev.device)
+        sp.ycur = wp.zeros((b, n_slots, SLOT_WIDTH), dtype=kern.vec3, device=dev.device)
+    return sp
+
+
+def make_state(kern, dev: Device, b: int, n1: int, dynamic: bool):
+    """The kernel ``Nodes`` of the solution: p, R, n, m (and q, w in dynamics) at every node."""
+    out = kern.Nodes()
+    d = dev.device
+    out.p = wp.zeros((b, n1), dtype=kern.vec3, device=d)
+    out.R = wp.zeros((b, n1), dtype=kern.mat33, device=d)
+    out.n = wp.zeros((b, n1), dtype=kern.vec3, device=d)
+    out.m = wp.zeros((b, n1), dtype=kern.vec3, device=d)
+    if dynamic:
+        out.q = wp.zeros((b, n1), dtype=kern.vec3, device=d)
+        out.w = wp.zeros((b, n1), dtype=kern.vec3, device=d)
+    out.orth = wp.zeros(b, dtype=dev.wdtype, device=d)
+    return out
+
+
+def make_work(kern, dev: Device, b: int):
+    """The kernel ``Newton`` scratch and outcome of b rods."""
+    nw = kern.Newton()
+    d = dev.device
+    for name in ("x", "r", "xt"):
+        setattr(nw, name, wp.zeros(b, dtype=kern.vec6, device=d))
+    nw.J = wp.zeros(b, dtype=kern.mat66, device=d)
+    nw.res = wp.zeros((b, kern.n_probes), dtype=kern.vec6, device=d)
+    for name in ("active", "need_jac", "flags", "status", "iters", "n_shoot"):
+        setattr(nw, name, wp.zeros(b, dtype=int, device=d))
+    nw.lam = wp.zeros(b, dtype=dev.wdtype, device=d)
+    nw.resnorm = wp.zeros(b, dtype=dev.wdtype, device=d)
+    nw.n_active = wp.zeros(1, dtype=int, device=d)
+    return nw

@@ -1,0 +1,116 @@
+"""Homotopies shared by statics and dynamics: when Newton fails (or would land on another
+equilibrium) from its start, a rod is reached along a path of easier problems, each solved
+from the last. Every choice is made per rod, so a rod's answer never depends on its batch
+neighbours.
+
+- ``load_continuation`` (statics): tensions and external loads scaled by lam = 1/c .. 1;
+- ``tension_increment`` (dynamics): tau(i-1) + lam (tau(i) - tau(i-1)) in one time step;
+- ``added_damping`` (dynamics): the step of a heavily damped copy, damping + s K / c0,
+  s = 1000^(1 - lam) - 1 going to 0.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .kernels import layout
+from .solver import Shooting
+
+LARGE_LOAD = 1.5  # scaled bending load of the straight-rod start: |m(0)| L / EI + |n_xy(0)| L^2 / EI
+MAX_CONTINUATION = 64
+
+
+def follow(sh: Shooting, set_load, steps: np.ndarray, mask: np.ndarray, start, newton: dict):
+    """Follow a load path for the rods in ``mask``: ``set_load(lam)`` sets the problem of every
+    rod at its lam (b,), rod i going through 1/steps[i], ..., 1, each solved from its last
+    solution (the first from ``start``: host (b, 6) or a device array). A rod that fails on the
+    way stops there, flagged. Returns the iterations and integrations each rod spent on it."""
+    steps = np.maximum(np.broadcast_to(steps, mask.shape), 1)
+    on_path = mask.copy()
+    iters = np.zeros(sh.b, dtype=np.int64)
+    shots = np.zeros(sh.b, dtype=np.int64)
+    for j in range(1, int(steps[mask].max(initial=0)) + 1):
+        set_load(np.minimum(j / steps, 1.0))
+        sh.solve(start if j == 1 else None, mask=on_path, fresh_jacobian=j == 1, **newton)
+        iters[on_path] += sh.newton.iters.numpy()[on_path]
+        shots[on_path] += sh.newton.n_shoot.numpy()[on_path]
+        on_path &= sh.converged() & (j < steps)
+        if not on_path.any():
+            break
+    return iters, shots
+
+
+def continuation_steps(x0: np.ndarray, minimum: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Which rods need a load continuation and over how many steps, from the scaled
+    straight-rod start x0 (b, 6): beyond ~1.5 rad of linear bending Newton may land on another
+    equilibrium (a looped cantilever under a large tip force); steps grow with the bending
+    load and the axial compression in Euler loads (sqrt(P L^2 / EI)). Returns (finite, large,
+    steps) per rod."""
+    with np.errstate(all="ignore"):  # absurd inputs overflow: those rods are flagged anyway
+        load = np.linalg.norm(x0[:, 3:], axis=1) + np.linalg.norm(x0[:, :2], axis=1)
+        compression = np.sqrt(np.abs(x0[:, 2]))
+        finite = np.isfinite(load) & np.isfinite(compression)
+        hard = np.where(finite, np.maximum(load, compression), 0.0)
+    steps = np.clip(np.ceil(hard), minimum, MAX_CONTINUATION).astype(np.int64)
+    return finite, load > LARGE_LOAD, steps
+
+
+def load_continuation(sh: Shooting, rod0: np.ndarray, pforce0: np.ndarray, tau: np.ndarray, x0: np.ndarray,
+                      mask: np.ndarray, steps: np.ndarray, newton: dict) -> None:
+    """Statics: tensions and external loads (gravity, tip wrench, point forces) of the rods in
+    ``mask`` scaled by lam, from the straight-rod start scaled likewise (it is linear in the
+    loads). Afterwards the rods' own tables are back in place, and their iterations and
+    integrations are the sums over the path."""
+    md = sh.model
+    own_rod, own_pf = md.rod, md.pforce
+    rod = np.array(np.broadcast_to(rod0, (sh.b, rod0.shape[1])))
+    md.rod = sh.dev.array(rod)
+    has_points = pforce0.shape[1] > 0
+    if has_points:
+        md.pforce = sh.dev.array(np.broadcast_to(pforce0, (sh.b,) + pforce0.shape[1:]))
+
+    def set_load(lam):
+        r = rod.copy()
+        for c in (layout.FE, layout.TIP_F, layout.TIP_M):
+            r[:, c:c + 3] *= lam[:, None]
+        sh.dev.put(md.rod, r)
+        if has_points:
+            sh.dev.put(md.pforce, pforce0 * lam[:, None, None])
+        sh.set_tensions(tau * lam[:, None])
+
+    try:
+        iters, shots = follow(sh, set_load, steps, mask, x0 * (1 / steps)[:, None], newton)
+    finally:
+        md.rod, md.pforce = own_rod, own_pf
+        sh.set_tensions(tau)
+    touched = shots > 0
+    it, sh_n = sh.newton.iters.numpy().copy(), sh.newton.n_shoot.numpy().copy()
+    it[touched], sh_n[touched] = iters[touched], shots[touched]
+    sh.dev.put(sh.newton.iters, it)
+    sh.dev.put(sh.newton.n_shoot, sh_n)
+
+
+def retry(sh: Shooting, set_load, failed: np.ndarray, start, newton: dict, continuation: int) -> np.ndarray:
+    """Dynamics: the homotopy along ``set_load`` in ``continuation`` steps, then 4x and 16x
+    finer, for the failed rods, from ``start``; returns the rods still failing."""
+    for n_sub in (continuation, 4 * continuation, 16 * continuation):
+        if not (failed.any() and n_sub):
+            break
+        follow(sh, set_load, np.full(sh.b, n_sub), failed, start, newton)
+        failed = failed & ~sh.converged()
+    return failed
+
+
+def tension_increment(sh: Shooting, tau_prev: np.ndarray, tau_new: np.ndarray):
+    """set_load of a large tension change within one time step."""
+    return lambda lam: sh.set_tensions(tau_prev + lam[:, None] * (tau_new - tau_prev))
+
+
+def added_damping(sh: Shooting, scratch, dyn: np.ndarray, stiffness: np.ndarray, c0: float):
+    """set_load of the damping homotopy; writes the device table ``scratch`` (b, DYN_WIDTH)."""
+    def set_damping(lam):
+        d = np.array(dyn)
+        s = np.array([1e3 ** (1 - x) - 1 for x in lam.tolist()])  # Python's pow, as a scalar path would
+        d[:, layout.BSE:layout.BBT + 3] += s[:, None] * stiffness / c0
+        sh.dev.put(scratch, d)
+    return set_damping

@@ -1,0 +1,126 @@
+"""Newton shooting of one chunk of rods on arrays allocated once.
+
+``Shooting`` holds the Model / Control / Step / State / Work of b rods and solves them:
+on a CPU the whole Newton loop of every rod runs in one kernel launch (no host round trip
+at all); on CUDA one launch per iteration with a thread per (rod, probe), repeated in
+blocks between reads of the count of rods still solving, or inside a CUDA graph
+(``wp.capture_while``). The verdict of every rod (kernels/newton.py) is made in the kernels;
+the host only reads it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import warp as wp
+
+from .build import (Device, Tables, make_control, make_state, make_step, make_work, put_model, set_tensions)
+from .kernels import layout
+from .kernels.shooting import make_shooting_kernels
+
+CHECK_EVERY = 4  # CUDA: Newton iterations between reads of the active count
+
+
+class Shooting:
+    """The shooting problem of rods lo:hi of a batch (``tables``) under tensions tau (b, K).
+
+    Device fields: ``model``, ``control``, ``step`` (dynamics: BDF-alpha history), ``nodes``
+    (the state at the nodes of the last accepted trial) and ``newton`` (unknowns x, Jacobian J,
+    status, iterations, integrations, residual, and the scratch of the iteration).
+    """
+
+    def __init__(self, tables: Tables, lo: int, hi: int, tau: np.ndarray, *, precision: str, integrator: str,
+                 model: str, device, dynamic: bool = False, rod: str = "cosserat"):
+        self.dev = Device(device, precision)
+        self.device = device
+        self.dynamic = dynamic
+        k = self.kern = make_shooting_kernels(self.dev.wdtype, integrator, model, dynamic, rod, tables.features)
+        self.b = b = hi - lo
+        self.n1 = n1 = tables.grid.shape[1]
+        self.n_slots = (n1 - 1) * k.stages + 2 * n1
+        self.model = put_model(k, self.dev, tables, lo, hi)
+        self.control = make_control(k, self.dev, tau)
+        self.step = make_step(k, self.dev, b, self.n_slots, dynamic)
+        self.nodes = make_state(k, self.dev, b, n1, dynamic)
+        self.newton = make_work(k, self.dev, b)
+        self.x_in = wp.zeros(b, dtype=k.vec6, device=device)  # host-given starts
+        self.mask = wp.zeros(b, dtype=int, device=device)
+        self.all_rods = wp.ones(b, dtype=int, device=device)
+        self.fused = not device.is_cuda
+        for kernel in (k.solve, k.begin):  # compile (or load) before threads race to it
+            kernel.module.load(device, 1 if device.is_cpu else 256)
+
+    def set_tensions(self, tau: np.ndarray) -> None:
+        set_tensions(self.dev, self.control, tau)
+
+    def evaluate(self, x: np.ndarray) -> None:
+        """One integration per rod from scaled unknowns x (b, 6), storing shapes and slots."""
+        self.dev.put(self.x_in, x)
+        wp.launch(self.kern.evaluate, dim=self.b, device=self.device,
+                  inputs=[self.model, self.control, self.step, self.x_in, self.nodes])
+
+    def solve(self, start=None, *, tol: float, max_iter: int, max_step: float, broyden: bool,
+              mask: np.ndarray | None = None, fresh_jacobian: bool = True) -> None:
+        """Newton for the rods in ``mask`` (default all; the others keep their results).
+
+        start: scaled unknowns (b, 6) on the host, a device array of them, or None (the last
+        solution). fresh_jacobian: finite differences first, or reuse ``newton.J`` (a warm
+        start's Jacobian, or the last one)."""
+        k, nw = self.kern, self.newton
+        if start is None:
+            x_from = nw.x
+        elif isinstance(start, wp.array):
+            x_from = start
+        else:
+            self.dev.put(self.x_in, start)
+            x_from = self.x_in
+        if mask is None:
+            m = self.all_rods
+        else:
+            self.dev.put(self.mask, np.asarray(mask, dtype=np.int32))
+            m = self.mask
+        nw.n_active.zero_()
+        wp.launch(k.begin, dim=self.b, device=self.device, inputs=[nw, x_from, int(fresh_jacobian), m])
+        newton = [self.dev.wdtype(tol), int(max_iter), self.dev.wdtype(max_step), int(broyden)]
+        if self.fused:
+            wp.launch(k.solve, dim=self.b, device=self.device,
+                      inputs=[self.model, self.control, self.step, nw, self.nodes, *newton, m])
+            return
+        self._iterate_on_device(newton, max_iter)
+        wp.launch(k.finish, dim=self.b, device=self.device,
+                  inputs=[self.model, self.control, self.step, nw, self.nodes, m])
+
+    def _iterate_on_device(self, newton: list, max_iter: int) -> None:
+        """Iterations with a thread per (rod, probe); no host read inside a block (graph-capturable)."""
+        k, nw = self.kern, self.newton
+
+        def iteration():
+            wp.launch(k.probe, dim=self.b * k.n_probes, device=self.device,
+                      inputs=[self.model, self.control, self.step, nw, self.nodes])
+            nw.n_active.zero_()
+            wp.launch(k.update, dim=self.b, device=self.device, inputs=[self.model, nw, *newton])
+
+        for done in range(0, max_iter, CHECK_EVERY):
+            for _ in range(min(CHECK_EVERY, max_iter - done)):
+                iteration()
+            if int(nw.n_active.numpy()[0]) == 0:
+                break
+
+    def status(self) -> np.ndarray:
+        return self.newton.status.numpy()
+
+    def converged(self) -> np.ndarray:
+        return (self.newton.status.numpy() & layout.CONVERGED) != 0
+
+    def results(self) -> dict[str, np.ndarray]:
+        """Host copies (float64) of the solution and the outcome of every rod."""
+        f64 = np.float64
+        nw, out = self.newton, self.nodes
+        status = nw.status.numpy().copy()
+        return {
+            "positions": out.p.numpy().astype(f64), "rotations": out.R.numpy().astype(f64),
+            "n": out.n.numpy().astype(f64), "m": out.m.numpy().astype(f64),
+            "x": nw.x.numpy().astype(f64), "converged": (status & layout.CONVERGED) != 0,
+            "status": status, "iterations": nw.iters.numpy().copy(), "integrations": nw.n_shoot.numpy().copy(),
+            "residual": nw.resnorm.numpy().astype(f64), "orthogonality_error": out.orth.numpy().astype(f64),
+            "jacobian": nw.J.numpy().astype(f64),
+        }

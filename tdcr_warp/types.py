@@ -1,0 +1,121 @@
+"""Solver options and the status bits of a rod's solve (host side).
+
+``StaticOptions`` holds everything that selects code or stopping rules; its fields become
+kernel-factory keys. Nothing here touches Warp: the scene reader imports it.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from .kernels import layout
+from .kernels.rod import MODELS, RODS
+from .kernels.shooting import INTEGRATORS
+from .robot import InputError
+
+__all__ = ["PRECISIONS", "PRESETS", "StaticOptions", "describe_status", "status_names"]
+
+PRECISIONS = ("float64", "float32")
+
+
+def status_names(status: int) -> list[str]:
+    """The status bits of one rod (kernels/layout.py) as words."""
+    return [v for k, v in layout.STATUS_NAMES.items() if int(status) & k]
+
+
+def describe_status(status: int) -> str:
+    """The status bits of one rod in words."""
+    names = status_names(status)
+    return ", ".join(names) if names else "not converged"
+
+
+PRESETS = {
+    "fast": dict(integrator="rk4", nodes=10, rod="kirchhoff"),
+    "balanced": dict(integrator="rk4", nodes=20, rod="cosserat"),
+    "accurate": dict(integrator="rk4", nodes=50, rod="cosserat", tol=1e-12),
+}
+
+
+@dataclass(frozen=True)
+class StaticOptions:
+    """What selects code and stopping rules (host only).
+
+    nodes: integration intervals along s (N; shapes have N + 1 nodes). integrator: "rk4",
+    "midpoint" or "euler". model: "coupled" (distributed tendon loads), "point" (termination
+    loads only) or "constant_curvature" (closed form: straight tendons ending at the tip, no
+    external load). rod: "cosserat" (shear, extension) or "kirchhoff" (inextensible,
+    unshearable). specialize: compile out the physics the batch does not contain (gravity,
+    point loads, helical routing, drag). error_estimate: also solve with N/2 nodes and report
+    per rod ``tip_error_estimate`` = 2 |tip(N) - tip(N/2)| / (2^p - 1) [m] (p: the integrator's
+    order; a Richardson estimate of the discretisation error with a safety factor 2; it does
+    not measure model error such as Kirchhoff vs Cosserat).
+    precision: "float64" or "float32". tol: Newton stops when the scaled residual, expressed
+    as a tip-displacement-like error L |r| [m], is below it (None: 1e-10 m in float64,
+    1e-6 m in float32). max_iter: Newton iterations per rod. max_step: bound on a Newton
+    step in scaled unknowns. jacobian: "broyden" (finite differences once, then rank-one
+    updates; a rebuild when a step fails) or "newton" (finite differences at every
+    iterate). continuation: rods that fail from the straight-rod start, or whose load would
+    bend a straight rod by more than ~1.5 rad (where other equilibria exist), are solved by a
+    homotopy in tensions and loads, scaled by 1/c, ..., 1, each step from the last, with
+    c = max(continuation, load, sqrt(axial load L^2 / EI)) steps (0: off). threads: CPU threads (None: all cores; CUDA uses one).
+    """
+
+    nodes: int = 50
+    integrator: str = "rk4"
+    model: str = "coupled"
+    precision: str = "float64"
+    tol: float | None = None
+    max_iter: int = 50
+    max_step: float = 10.0
+    jacobian: str = "broyden"
+    continuation: int = 8
+    rod: str = "cosserat"
+    specialize: bool = True
+    error_estimate: bool = False
+    threads: int | None = None
+
+    def __post_init__(self):
+        def integer(v, low, high=10**9):
+            return isinstance(v, int) and not isinstance(v, bool) and low <= v <= high
+
+        def one_of(v, options):
+            return isinstance(v, str) and v in options
+
+        def positive(v):
+            return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v > 0
+
+        checks = [
+            ("nodes", integer(self.nodes, 1, 100_000), "an integer in [1, 100000]"),
+            ("integrator", one_of(self.integrator, INTEGRATORS), f"one of {INTEGRATORS}"),
+            ("model", one_of(self.model, MODELS + ("constant_curvature",)), f"one of {MODELS + ('constant_curvature',)}"),
+            ("rod", one_of(self.rod, RODS), f"one of {RODS}"),
+            ("specialize", isinstance(self.specialize, bool), "true or false"),
+            ("error_estimate", isinstance(self.error_estimate, bool), "true or false"),
+            ("precision", one_of(self.precision, PRECISIONS), f"one of {tuple(PRECISIONS)}"),
+            ("tol", self.tol is None or positive(self.tol), "a positive number"),
+            ("max_iter", integer(self.max_iter, 1, 10_000), "an integer in [1, 10000]"),
+            ("max_step", positive(self.max_step), "a positive number"),
+            ("jacobian", one_of(self.jacobian, ("broyden", "newton")), "'broyden' or 'newton'"),
+            ("continuation", integer(self.continuation, 0, 10_000), "an integer in [0, 10000]"),
+            ("threads", self.threads is None or integer(self.threads, 1), "a positive integer"),
+        ]
+        for name, ok, what in checks:
+            if not ok:
+                raise InputError(f"solver {name} must be {what}, got {getattr(self, name)!r}")
+
+    @classmethod
+    def preset(cls, name: str, **overrides) -> "StaticOptions":
+        """Named settings chosen from experiments/speed_accuracy.py (see README for the
+        measured tip errors): "fast", "balanced" (the defaults at N = 20) or "accurate"."""
+        if name not in PRESETS:
+            raise InputError(f"solver preset must be one of {tuple(PRESETS)}, got {name!r}")
+        return cls(**(PRESETS[name] | overrides))
+
+    @property
+    def tolerance(self) -> float:
+        if self.tol is not None:
+            return self.tol
+        return 1e-10 if self.precision == "float64" else 1e-6
+
+
