@@ -182,12 +182,14 @@ def make_shooting_kernels(dtype, integrator: str, model: str, dynamic: bool = Fa
             shoot(nw.x[b], md, ct, sp, b, 1, out)
 
     @wp.kernel(module="unique", enable_backward=False)
-    def solve_kernel(md: Model, ct: Control, sp: Step, nw: Newton, out: Nodes, tol: dtype, max_iter: int,
-                     max_step: dtype, broyden: int, mask: wp.array(dtype=int)):
-        """The whole Newton loop of rod b (``mask[b]`` = 1) in one thread."""
+    def solve_kernel(md: Model, ct: Control, sp: Step, nw: Newton, out: Nodes, x_from: wp.array(dtype=vec6),
+                     fresh_jacobian: int, tol: dtype, max_iter: int, max_step: dtype, broyden: int,
+                     mask: wp.array(dtype=int)):
+        """The whole Newton loop of rod b (``mask[b]`` = 1) in one thread, from x_from[b]."""
         b = wp.tid()
         if mask[b] == 0:
             return
+        nt.begin(nw, b, x_from, fresh_jacobian)
         for _it in range(max_iter):
             if nw.active[b] == 0:
                 break

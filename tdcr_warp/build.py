@@ -118,7 +118,8 @@ class Tables:
 
     rod, dyn, tendon, pforce: see kernels/layout.py; grid (1|B, N+1) [m]; term_node (1|B, K)
     and pnode (1|B, P): node indices; scales (1|B, 6): factors from [n(0), m(0)] to the
-    scaled unknowns [L^2/EI, L/EI]; stiffness (1|B, 6): the Kse and Kbt diagonals.
+    scaled unknowns [L^2/EI, L/EI]; stiffness (1|B, 6): the Kse and Kbt diagonals;
+    features: the physics the robot contains; straight: its Newton start.
     """
 
     rod: np.ndarray
@@ -131,6 +132,7 @@ class Tables:
     scales: np.ndarray
     stiffness: np.ndarray
     features: Features
+    straight: StraightRod
 
     @classmethod
     def of(cls, robot: Robot, nodes: int, specialize: bool = True) -> "Tables":
@@ -146,7 +148,7 @@ class Tables:
                    pforce=point_f, pnode=point_node,
                    scales=np.concatenate([np.repeat(f[:, None], 3, 1), np.repeat(m[:, None], 3, 1)], 1),
                    stiffness=np.concatenate(np.broadcast_arrays(sec["kse"], sec["kbt"]), axis=1),
-                   features=scene_features(robot, tendon, specialize))
+                   features=scene_features(robot, tendon, specialize), straight=StraightRod.of(robot))
 
     def rows(self, name: str, lo: int, hi: int) -> np.ndarray:
         """Rows lo:hi of table ``name``; a shared table (leading 1) stays as it is."""
@@ -157,33 +159,62 @@ class Tables:
         return np.broadcast_to(self.scales, (B, 6))
 
 
-def straight_guess(robot: Robot, tensions: np.ndarray) -> np.ndarray:
-    """n(0), m(0) (B, 6) of the straight rod under the same loads: the Newton start."""
-    B = tensions.shape[0]
-    e3 = np.array([0.0, 0.0, 1.0])
-    L = np.broadcast_to(robot.length, (B,))
-    sec = robot.section()
-    fe = np.broadcast_to((robot.density * sec["area"])[:, None] * robot.gravity, (B, 3))
-    tip_f = np.broadcast_to(robot.tip_force, (B, 3))
-    n0 = tip_f + fe * L[:, None]
-    m0 = (np.broadcast_to(robot.tip_moment, (B, 3)) + np.cross(L[:, None] * e3, tip_f)
-          + np.cross(0.5 * (L**2)[:, None] * e3, fe))
-    if robot.tendons:
-        tl = np.broadcast_to(robot.tendon_lengths(), (B, robot.n_tendons))
-        r, dr, _ = robot.tendon_routing(tl)
-        r, dr = np.broadcast_to(r, (B, robot.n_tendons, 3)), np.broadcast_to(dr, (B, robot.n_tendons, 3))
-        for k in range(robot.n_tendons):
-            t = dr[:, k] + e3
-            F = -tensions[:, k, None] * t / np.linalg.norm(t, axis=-1, keepdims=True)
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a x b over the last axis, the same arithmetic as np.cross at a fraction of its overhead."""
+    return np.stack([a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1], a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2],
+                     a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]], axis=-1)
+
+
+@dataclass(frozen=True)
+class StraightRod:
+    """What the Newton start of a robot needs, computed once: the base wrench of the straight
+    rod under its external loads (gravity, tip wrench: ``external``, point forces: ``points``,
+    (1|B, 6)), and per tendon the tangent at its end (dr + e3, (1|B, K, 3)), its length
+    (1|B, K, 1) and the lever arm s_end e3 + r (1|B, K, 3)."""
+
+    external: np.ndarray
+    points: np.ndarray | None
+    tangent: np.ndarray
+    tangent_norm: np.ndarray
+    arm: np.ndarray
+
+    @classmethod
+    def of(cls, robot: Robot) -> "StraightRod":
+        e3 = np.array([0.0, 0.0, 1.0])
+        L = robot.length
+        sec = robot.section()
+        fe = (robot.density * sec["area"])[:, None] * robot.gravity
+        n0 = robot.tip_force + fe * L[:, None]
+        m0 = robot.tip_moment + _cross(L[:, None] * e3, robot.tip_force) + _cross(0.5 * (L**2)[:, None] * e3, fe)
+        K = robot.n_tendons
+        t = arm = norm = np.zeros((1, K, 3))
+        if K:
+            tl = robot.tendon_lengths()
+            r, dr, _ = robot.tendon_routing(tl)
+            t = dr + e3
+            norm = np.linalg.norm(t, axis=-1, keepdims=True)
+            arm = tl[..., None] * e3 + r
+        points = None
+        if robot.point_forces:
+            ps, pf = robot.pack_point_forces()
+            points = np.concatenate(np.broadcast_arrays(pf.sum(axis=1), _cross(ps[..., None] * e3, pf).sum(axis=1)),
+                                    axis=1)
+        return cls(external=np.concatenate(np.broadcast_arrays(n0, m0), axis=1), points=points, tangent=t,
+                   tangent_norm=norm, arm=arm)
+
+    def guess(self, tensions: np.ndarray) -> np.ndarray:
+        """n(0), m(0) (B, 6) of the straight rod under tensions (B, K): the Newton start."""
+        B = tensions.shape[0]
+        ext = np.broadcast_to(self.external, (B, 6))
+        n0, m0 = ext[:, :3], ext[:, 3:]
+        for k in range(tensions.shape[1]):
+            F = -tensions[:, k, None] * self.tangent[:, k] / self.tangent_norm[:, k]
             n0 = n0 + F
-            m0 = m0 + np.cross(tl[:, k, None] * e3 + r[:, k], F)
-    if robot.point_forces:
-        ps, pf = robot.pack_point_forces()
-        ps = np.broadcast_to(ps, (B, ps.shape[1]))
-        pf = np.broadcast_to(pf, (B,) + pf.shape[1:])
-        n0 = n0 + pf.sum(axis=1)
-        m0 = m0 + np.cross(ps[..., None] * e3, pf).sum(axis=1)
-    return np.concatenate([n0, m0], axis=1)
+            m0 = m0 + _cross(self.arm[:, k], F)
+        if self.points is not None:
+            n0 = n0 + self.points[:, :3]
+            m0 = m0 + self.points[:, 3:]
+        return np.concatenate(np.broadcast_arrays(n0, m0), axis=1)
 
 
 def _pad(a: np.ndarray, shape_min: tuple) -> np.ndarray:

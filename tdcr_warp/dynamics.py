@@ -266,7 +266,7 @@ class _Chunk:
         o = sim.opts
         self.sim = sim
         self.sh = sh = Shooting(tables, lo, hi, tau, precision=o.precision, integrator=o.integrator,
-                                model=o.model, device=sim.dev, dynamic=True, rod=o.rod)
+                                model=o.model, device=sim.dev, dynamic=True, rod=o.rod, driver=o.driver)
         self.hk = make_history_kernels(sh.dev.wdtype)
         b, d = sh.b, sim.dev
         self.dyn = np.broadcast_to(tables.rows("dyn", lo, hi), (b, tables.dyn.shape[1]))

@@ -29,7 +29,7 @@ class Shooting:
     """
 
     def __init__(self, tables: Tables, lo: int, hi: int, tau: np.ndarray, *, precision: str, integrator: str,
-                 model: str, device, dynamic: bool = False, rod: str = "cosserat"):
+                 model: str, device, dynamic: bool = False, rod: str = "cosserat", driver: str | None = None):
         self.dev = Device(device, precision)
         self.device = device
         self.dynamic = dynamic
@@ -45,7 +45,7 @@ class Shooting:
         self.x_in = wp.zeros(b, dtype=k.vec6, device=device)  # host-given starts
         self.mask = wp.zeros(b, dtype=int, device=device)
         self.all_rods = wp.ones(b, dtype=int, device=device)
-        self.fused = not device.is_cuda
+        self.fused = (driver or ("probes" if device.is_cuda else "fused")) == "fused"
         for kernel in (k.solve, k.begin):  # compile (or load) before threads race to it
             kernel.module.load(device, 1 if device.is_cpu else 256)
 
@@ -78,13 +78,14 @@ class Shooting:
         else:
             self.dev.put(self.mask, np.asarray(mask, dtype=np.int32))
             m = self.mask
-        nw.n_active.zero_()
-        wp.launch(k.begin, dim=self.b, device=self.device, inputs=[nw, x_from, int(fresh_jacobian), m])
         newton = [self.dev.wdtype(tol), int(max_iter), self.dev.wdtype(max_step), int(broyden)]
         if self.fused:
             wp.launch(k.solve, dim=self.b, device=self.device,
-                      inputs=[self.model, self.control, self.step, nw, self.nodes, *newton, m])
+                      inputs=[self.model, self.control, self.step, nw, self.nodes, x_from, int(fresh_jacobian),
+                              *newton, m])
             return
+        nw.n_active.zero_()
+        wp.launch(k.begin, dim=self.b, device=self.device, inputs=[nw, x_from, int(fresh_jacobian), m])
         self._iterate_on_device(newton, max_iter)
         wp.launch(k.finish, dim=self.b, device=self.device,
                   inputs=[self.model, self.control, self.step, nw, self.nodes, m])

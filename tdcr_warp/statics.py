@@ -18,7 +18,7 @@ from dataclasses import asdict, dataclass, field, replace
 import numpy as np
 import warp as wp
 
-from .build import Tables, straight_guess
+from .build import Tables
 from .homotopy import continuation_steps, load_continuation
 from .kernels import layout
 from .parallel import parallel, split
@@ -139,7 +139,8 @@ class StaticProblem:
         self.chunks = split(B, device, opts.threads)
         K = robot.n_tendons
         self.solvers = [Shooting(self.tables, lo, hi, np.zeros((hi - lo, K)), precision=opts.precision,
-                                 integrator=opts.integrator, model=opts.model, device=device, rod=opts.rod)
+                                 integrator=opts.integrator, model=opts.model, device=device, rod=opts.rod,
+                                 driver=opts.driver)
                         for lo, hi in self.chunks]
         self.lock = threading.Lock()
 
@@ -151,7 +152,7 @@ class StaticProblem:
                 raise InputError(f"initial: warm start has {initial.base_wrench.shape[0]} rods, batch has {B}")
             x0, J0 = initial.base_wrench * scales, initial.jacobian
         else:
-            x0, J0 = straight_guess(self.robot, tau) * scales, None
+            x0, J0 = tables.straight.guess(tau) * scales, None
         newton = dict(tol=opts.tolerance, max_iter=opts.max_iter, max_step=opts.max_step,
                       broyden=opts.jacobian == "broyden")
 
@@ -189,7 +190,7 @@ def _problem(robot: Robot, B: int, opts: StaticOptions, device) -> tuple[StaticP
     Returns (problem, cached)."""
     if B * (opts.nodes + 1) > CACHE_NODE_RODS:
         return StaticProblem(robot, B, opts, device), False
-    key = (id(robot), B, replace(opts, error_estimate=False), device.alias)
+    key = (id(robot), B, opts if not opts.error_estimate else replace(opts, error_estimate=False), device.alias)
     with _cache_lock:
         hit = _cache.get(key)
         if hit is not None and hit[0]() is robot and hit[1].lock.acquire(blocking=False):

@@ -14,9 +14,10 @@ from .kernels.rod import MODELS, RODS
 from .kernels.shooting import INTEGRATORS
 from .robot import InputError
 
-__all__ = ["PRECISIONS", "PRESETS", "StaticOptions", "describe_status", "status_names"]
+__all__ = ["DRIVERS", "PRECISIONS", "PRESETS", "StaticOptions", "describe_status", "status_names"]
 
 PRECISIONS = ("float64", "float32")
+DRIVERS = ("fused", "probes")
 
 
 def status_names(status: int) -> list[str]:
@@ -58,7 +59,11 @@ class StaticOptions:
     iterate). continuation: rods that fail from the straight-rod start, or whose load would
     bend a straight rod by more than ~1.5 rad (where other equilibria exist), are solved by a
     homotopy in tensions and loads, scaled by 1/c, ..., 1, each step from the last, with
-    c = max(continuation, load, sqrt(axial load L^2 / EI)) steps (0: off). threads: CPU threads (None: all cores; CUDA uses one).
+    c = max(continuation, load, sqrt(axial load L^2 / EI)) steps per rod (0: off). threads:
+    CPU threads (None: all cores; CUDA uses one). driver: how the Newton loop runs: "fused"
+    (all iterations of a rod in one thread, one launch per solve: the CPU default),
+    "probes" (a thread per rod and probe, one launch per iteration: the CUDA default), None:
+    the device's default.
     """
 
     nodes: int = 50
@@ -74,6 +79,7 @@ class StaticOptions:
     specialize: bool = True
     error_estimate: bool = False
     threads: int | None = None
+    driver: str | None = None
 
     def __post_init__(self):
         def integer(v, low, high=10**9):
@@ -99,6 +105,7 @@ class StaticOptions:
             ("jacobian", one_of(self.jacobian, ("broyden", "newton")), "'broyden' or 'newton'"),
             ("continuation", integer(self.continuation, 0, 10_000), "an integer in [0, 10000]"),
             ("threads", self.threads is None or integer(self.threads, 1), "a positive integer"),
+            ("driver", self.driver is None or one_of(self.driver, DRIVERS), f"one of {DRIVERS}"),
         ]
         for name, ok, what in checks:
             if not ok:
