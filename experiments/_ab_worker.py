@@ -4,12 +4,14 @@
 
 Run it with a working directory that holds no tdcr_warp folder, so that the installed package is the
 one imported. It warms up (kernel compilation, first call) before timing and prints one line
-``AB_RESULT {"metrics": {...}, "info": {...}}`` last on stdout. The robot is the report's
+``AB_RESULT {"metrics": {...}, "info": {...}}`` last on stdout; the info holds the path of the
+imported package and a hash of its sources. The robot is the report's
 (experiments/bench_static.py, experiments/bench_dynamics.py); only the public API is used.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import subprocess
@@ -20,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 import tdcr_warp as tw
+import tdcr_warp.kernels
 
 MARKER = "AB_RESULT "
 OFFSETS = [(0.01, 0.0), (0.0, 0.01), (-0.01, 0.0), (0.0, -0.01)]
@@ -42,9 +45,9 @@ def static1(nodes: int, calls: int, warmup: int):
         tw.solve_static(rob, row, nodes=nodes)
     times = {"static1_random": [], "static1_same": []}
     for row in tau[warmup:]:
-        for key, t in (("static1_random", row), ("static1_same", tau[0])):
+        for key, tensions in (("static1_random", row), ("static1_same", tau[0])):
             t0 = time.perf_counter()
-            tw.solve_static(rob, t, nodes=nodes)
+            tw.solve_static(rob, tensions, nodes=nodes)
             times[key].append(time.perf_counter() - t0)
     return {key: 1e3 * float(np.median(v)) for key, v in times.items()}, {}
 
@@ -121,10 +124,20 @@ MEASUREMENTS = {"static1": static1, "static_batch": static_batch, "dyn1": dyn1, 
                 "startup": startup}
 
 
+def source_digest() -> str:
+    """A hash of the imported package's Python sources (tdcr_warp and its kernels)."""
+    h = hashlib.sha256()
+    for pkg in (tw, tdcr_warp.kernels):
+        for f in sorted(Path(pkg.__file__).parent.glob("*.py")):
+            h.update(f.name.encode() + f.read_bytes())
+    return h.hexdigest()[:12]
+
+
 def main(argv: list[str]) -> int:
     name, kwargs = argv[0], json.loads(argv[1])
+    digest = source_digest()
     metrics, info = MEASUREMENTS[name](**kwargs)
-    info["tdcr_warp"] = tw.__file__
+    info.update(tdcr_warp=tw.__file__, sources=digest)
     print(MARKER + json.dumps({"metrics": metrics, "info": info}), flush=True)
     return 0
 

@@ -1,12 +1,15 @@
 """A/B benchmark: an old install of tdcr_warp against a new one, measured together in one run.
 
 Only ratios measured side by side mean something on a shared, noisy machine, so each repeat runs
-every measurement in a fresh worker process (experiments/_ab_worker.py) on the old side, then at
-once on the new side (old, new, old, new, ...). Each worker warms up (kernel compilation, first
-call) before it times, and runs in an empty temporary directory, so that each Python imports its
-own installed tdcr_warp. Reported per metric: each side's median over the repeats and its spread
-(max - min) / median, the new/old ratio of the medians, the speed-up (> 1: the new side is faster)
-and the median and range of the speed-ups of the back-to-back (old, new) pairs.
+every measurement in a fresh worker process (experiments/_ab_worker.py) on both sides back to
+back: old then new in odd repeats, new then old in even ones (a side that always ran first or
+always right after the previous heavy measurement would be biased). Each worker warms up (kernel
+compilation, first call) before it times, and runs in an empty temporary directory, so that each
+Python imports its own installed tdcr_warp. Reported per metric: each side's median over the
+repeats and its spread (max - min) / median, the new/old ratio of the medians, the speed-up
+(> 1: the new side is faster) and the median and range of the speed-ups of the back-to-back
+(old, new) pairs. A warning says when a side's sources changed during the run (an editable
+install being edited).
 
 Measurements (the report's robot: 4 tendons, gravity; RK4, coupled, float64, CPU):
   static1       one rod, solve_static called repeatedly on the same Robot (N = 20): median ms
@@ -23,7 +26,7 @@ Measurements (the report's robot: 4 tendons, gravity; RK4, coupled, float64, CPU
         [--repeats 5] [--batch 4096] [--smoke] [--out results/bench_ab.json]
 
 --new-python defaults to this Python; with --smoke (tiny sizes, 1 repeat) --base-python does too.
-A repeat takes about 1.5-3 minutes at B = 4096 on the 2-core machine (most of it dyn_batch).
+A repeat takes 2-3 minutes at B = 4096 on the shared 2-core machine, most of it in dyn_batch.
 A measurement that fails on a side is reported with its error and the run goes on; the exit
 status is 1 if any worker failed (the report is written either way), else 0.
 """
@@ -183,7 +186,7 @@ def main(argv=None) -> int:
     with tempfile.TemporaryDirectory() as cwd:
         for r in range(repeats):
             for name, kwargs in work.items():
-                for side in SIDES:
+                for side in SIDES if r % 2 == 0 else SIDES[::-1]:
                     t0 = time.perf_counter()
                     res = run_worker(pythons[side], name, kwargs, cwd)
                     runs[name][side].append(res)
@@ -196,9 +199,15 @@ def main(argv=None) -> int:
     failed = print_errors(runs)
     print(f"\ntotal {time.perf_counter() - t_start:.0f} s")
 
-    installs = {side: next((res["info"]["tdcr_warp"] for results in (s[side] for s in runs.values())
-                            for res in results if "info" in res), None) for side in SIDES}
-    meta = metadata("cpu", dtype="float64", repeats=repeats, batch=args.batch, smoke=args.smoke,
+    installs = {}
+    for side in SIDES:
+        infos = [res["info"] for sides in runs.values() for res in sides[side] if "info" in res]
+        installs[side] = {"path": sorted({i["tdcr_warp"] for i in infos}),
+                          "sources": sorted({i["sources"] for i in infos})}
+        if len(installs[side]["sources"]) > 1:
+            print(f"WARNING: the {side} side's sources changed during the run "
+                  f"({len(installs[side]['sources'])} versions): its repeats did not all time the same code")
+    meta = metadata("cpu", dtype="float64", repeats=repeats, batch=work["static_batch"]["batch"], smoke=args.smoke,
                     pythons=pythons, tdcr_warp=installs)
     write_report(args.out, {"meta": meta, "plan": work, "metrics": table, "runs": runs})
     return 1 if failed else 0

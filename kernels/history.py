@@ -15,8 +15,9 @@ def make_history_kernels(dtype, nu: int = 6):
     vec3 = wp.types.vector(3, dtype)
     mat33 = wp.types.matrix((3, 3), dtype)
     vecx = wp.types.vector(nu, dtype)
+    module = f"tdcr_warp_history_{wp.types.type_repr(dtype)}_{nu}"
 
-    @wp.kernel(module="unique", enable_backward=False)
+    @wp.kernel(module=module, enable_backward=False)
     def advance_history(
         ycur: wp.array3d(dtype=vec3),
         yprev: wp.array3d(dtype=vec3),
@@ -43,7 +44,7 @@ def make_history_kernels(dtype, nu: int = 6):
         hist[b, sl, c] = c1 * y + c2 * yp + d1 * yt
         yprev[b, sl, c] = y
 
-    @wp.kernel(module="unique", enable_backward=False)
+    @wp.kernel(module=module, enable_backward=False)
     def tip_kinematics(
         p: wp.array2d(dtype=vec3),
         R: wp.array2d(dtype=mat33),
@@ -73,7 +74,7 @@ def make_history_kernels(dtype, nu: int = 6):
         tip_v[b] = v
         tip_a[b] = acc
 
-    @wp.kernel(module="unique", enable_backward=False)
+    @wp.kernel(module=module, enable_backward=False)
     def predict(x: wp.array(dtype=vecx), x_prev: wp.array(dtype=vecx), x_start: wp.array(dtype=vecx),
                 extrapolate: int):
         """Newton start of the next step: the linear extrapolation 2 x(i) - x(i-1) (the shooting
@@ -86,4 +87,4 @@ def make_history_kernels(dtype, nu: int = 6):
             x_start[b] = xi
         x_prev[b] = xi
 
-    return SimpleNamespace(advance=advance_history, tip_kinematics=tip_kinematics, predict=predict)
+    return SimpleNamespace(advance=advance_history, tip_kinematics=tip_kinematics, predict=predict, module=module)

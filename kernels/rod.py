@@ -138,13 +138,12 @@ def make_rod_funcs(dtype, model: str, dynamic: bool, rod: str = "cosserat", feat
         return md.term_node[b % md.term_node.shape[0], k]
 
     @wp.func
-    def strains(md: Model, sp: Step, b: int, R: mat33, n: vec3, m: vec3, slot: int):
-        """v, u (body frame) from the constitutive law; with strain damping in dynamics:
-        R^T n = Kse (v - v*) + Bse v_t with v_t = c0 v + v_h (likewise u)."""
+    def body_strains(md: Model, sp: Step, b: int, rtn: vec3, rtm: vec3, slot: int):
+        """v, u (body frame) from the body-frame internal force R^T n and moment R^T m by the
+        constitutive law; with strain damping in dynamics: R^T n = Kse (v - v*) + Bse v_t with
+        v_t = c0 v + v_h (likewise u)."""
         kse = rvec(md, b, KSE)
         kbt = rvec(md, b, KBT)
-        rtn = wp.transpose(R) * n
-        rtm = wp.transpose(R) * m
         ustar = rvec(md, b, USTAR)
         v = vec3(zero, zero, one)
         if wp.static(dynamic):
@@ -161,6 +160,11 @@ def make_rod_funcs(dtype, model: str, dynamic: bool, rod: str = "cosserat", feat
         return v, wp.cw_div(rtm, kbt) + ustar
 
     @wp.func
+    def strains(md: Model, sp: Step, b: int, R: mat33, n: vec3, m: vec3, slot: int):
+        """v, u from the world-frame n, m (see ``body_strains``)."""
+        return body_strains(md, sp, b, wp.transpose(R) * n, wp.transpose(R) * m, slot)
+
+    @wp.func
     def store_slot(sp: Step, b: int, slot: int, v: vec3, u: vec3, q: vec3, w: vec3, dv: vec3, du: vec3):
         if wp.static(dynamic):
             sp.ycur[b, slot, SLOT_V] = v
@@ -175,14 +179,23 @@ def make_rod_funcs(dtype, model: str, dynamic: bool, rod: str = "cosserat", feat
         """The coupled model's distributed tendon load [RW11], f_t = a + A v' + G u' and
         l_t = b + B v' + H u' (body frame), summed over the tendons that pull on this interval.
 
-        Per tendon: path tangent pb = u x r + r' + v, A_i = -tau_i hat(pb)^2 / |pb|^3,
-        B_i = hat(r) A_i, G_i = -A_i hat(r), H_i = -hat(r) A_i hat(r), and
-        a_i = A_i (u x pb + u x r' + r''), b_i = r x a_i. Returns A, B, G, H, a, b.
+        Per tendon the path tangent is pb = u x r + r' + v, so d pb = v' + u' x r = J [v'; u']
+        with J = [I, hat(r)^T], and with e = tau / |pb|^3 the tendon's block is
+        [[A, G], [B, H]]_i = J^T A_i J, A_i = e (|pb|^2 I - pb pb^T) (symmetric, PSD):
+          A = sum w I - e pb pb^T,  B = G^T = hat(sum w r) - e q pb^T,
+          H = sum w (|r|^2 I - r r^T) - e q q^T,  with w = e |pb|^2 and q = r x pb,
+        where r = (x, y, 0) in the cross-section. The known part: a_i = A_i y with
+        y = u x (pb + r') + r'', b_i = r x a_i. Returns A, B, H, a, b and sum w (0: no tendon
+        pulls here).
         """
-        As = mat33()
-        Bs = mat33()
-        Gs = mat33()
-        Hs = mat33()
+        Am = mat33()  # sum e pb pb^T
+        Bm = mat33()  # sum e q pb^T
+        Hm = mat33()  # sum e q q^T
+        W = zero
+        Wr = vec3()
+        wxx = zero
+        wxy = zero
+        wyy = zero
         a_sum = vec3()
         b_sum = vec3()
         for k in range(md.n_tendons):
@@ -190,19 +203,30 @@ def make_rod_funcs(dtype, model: str, dynamic: bool, rod: str = "cosserat", feat
             if t > zero and step < term_node(md, b, k):
                 r, dr, ddr = tendon_route(md, b, k, s)
                 pb = wp.cross(u, r) + dr + v
-                npb = wp.length(pb)
-                P = wp.skew(pb)
-                Ai = (-t / (npb * npb * npb)) * (P * P)
-                Rh = wp.skew(r)
-                Bi = Rh * Ai
-                As += Ai
-                Bs += Bi
-                Gs -= Ai * Rh
-                Hs -= Bi * Rh
-                ai = Ai * (wp.cross(u, pb) + wp.cross(u, dr) + ddr)
+                pp = wp.dot(pb, pb)
+                e = t / (pp * wp.sqrt(pp))
+                w = e * pp
+                q = wp.cross(r, pb)
+                epb = e * pb
+                eq = e * q
+                Am += wp.outer(epb, pb)
+                Bm += wp.outer(eq, pb)
+                Hm += wp.outer(eq, q)
+                W += w
+                Wr += w * r
+                wx = w * r[0]
+                wy = w * r[1]
+                wxx += wx * r[0]
+                wxy += wx * r[1]
+                wyy += wy * r[1]
+                y = wp.cross(u, pb + dr) + ddr
+                ai = w * y - wp.dot(pb, y) * epb
                 a_sum += ai
                 b_sum += wp.cross(r, ai)
-        return As, Bs, Gs, Hs, a_sum, b_sum
+        As = wp.diag(vec3(W, W, W)) - Am
+        Bs = wp.skew(Wr) - Bm
+        Hs = mat33(wyy, -wxy, zero, -wxy, wxx, zero, zero, zero, wxx + wyy) - Hm
+        return As, Bs, Hs, a_sum, b_sum, W
 
     @wp.func
     def rhs(md: Model, ct: Control, sp: Step, b: int, s: dtype, p: vec3, R: mat33, n: vec3, m: vec3, q: vec3,
@@ -211,7 +235,7 @@ def make_rod_funcs(dtype, model: str, dynamic: bool, rod: str = "cosserat", feat
         Rt = wp.transpose(R)
         rtn = Rt * n  # Kse (v - v*) + Bse v_t
         rtm = Rt * m  # Kbt (u - u*) + Bbt u_t
-        v, u = strains(md, sp, b, R, n, m, slot)
+        v, u = body_strains(md, sp, b, rtn, rtm, slot)
         dp = R * v
         dR = R * wp.skew(u)
         dq = vec3()
@@ -239,7 +263,7 @@ def make_rod_funcs(dtype, model: str, dynamic: bool, rod: str = "cosserat", feat
         dv = vec3()
         du = vec3()
         if wp.static(coupled):
-            As, Bs, Gs, Hs, a_sum, b_sum = coupled_tendon_load(md, ct, b, s, u, v, step)
+            As, Bs, Hs, a_sum, b_sum, W = coupled_tendon_load(md, ct, b, s, u, v, step)
             kse = rvec(md, b, KSE)
             kbt = rvec(md, b, KBT)
             c = lam_n - wp.cross(u, rtn) - a_sum
@@ -249,17 +273,25 @@ def make_rod_funcs(dtype, model: str, dynamic: bool, rod: str = "cosserat", feat
                 kbt = kbt + sp.c0 * dvec(md, b, BBT)
                 c = c - wp.cw_mul(dvec(md, b, BSE), sp.hist[b, slot, SLOT_DV])
                 d = d - wp.cw_mul(dvec(md, b, BBT), sp.hist[b, slot, SLOT_DU])
-            # 6x6 solve [[Kse + c0 Bse + A, G], [B, Kbt + c0 Bbt + H]] [v'; u'] = [c; d]
-            # by the Schur complement of the upper-left block.
-            if wp.static(kirchhoff):  # v' = 0: the lower block row alone
-                du = wp.inverse(wp.diag(kbt) + Hs) * d
+            # 6x6 solve [[Kse + c0 Bse + A, B^T], [B, Kbt + c0 Bbt + H]] [v'; u'] = [c; d]
+            # by the Schur complement of the upper-left block. The tendon load follows from the
+            # solve: a + A v' + G u' = a + c - (Kse + c0 Bse) v', likewise for the moment.
+            if W == zero:  # no tendon pulls on this interval: a diagonal system, no tendon load
+                du = wp.cw_div(d, kbt)
+                if wp.static(not kirchhoff):
+                    dv = wp.cw_div(c, kse)
             else:
-                Pinv = wp.inverse(wp.diag(kse) + As)
-                S = wp.diag(kbt) + Hs - Bs * Pinv * Gs
-                du = wp.inverse(S) * (d - Bs * (Pinv * c))
-                dv = Pinv * (c - Gs * du)
-            dn = dn - R * (a_sum + As * dv + Gs * du)
-            dm = dm - R * (b_sum + Bs * dv + Hs * du)
+                if wp.static(kirchhoff):  # v' = 0: the lower block row alone
+                    du = wp.inverse(wp.diag(kbt) + Hs) * d
+                    dn = dn - R * (a_sum + wp.transpose(Bs) * du)
+                else:
+                    Pinv = wp.inverse(wp.diag(kse) + As)
+                    BP = Bs * Pinv
+                    S = wp.diag(kbt) + Hs - BP * wp.transpose(Bs)
+                    du = wp.inverse(S) * (d - BP * c)
+                    dv = Pinv * (c - wp.transpose(Bs) * du)
+                    dn = dn - R * (a_sum + c - wp.cw_mul(kse, dv))
+                dm = dm - R * (b_sum + d - wp.cw_mul(kbt, du))
         if wp.static(dynamic):
             if store != 0:
                 store_slot(sp, b, slot, v, u, q, w, dv, du)

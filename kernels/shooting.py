@@ -46,6 +46,10 @@ def make_shooting_kernels(dtype, integrator: str, model: str, dynamic: bool = Fa
     nt = make_newton(dtype, N_BASE, dynamic)
     Newton, vec6 = nt.Newton, nt.vec
     n_probes = nt.n_probes
+    # One Warp module per variant and driver: a solve compiles only what its device runs.
+    key = f"{wp.types.type_repr(dtype)}_{integrator}_{model}_{'dyn' if dynamic else 'static'}_{rod}_" + "".join(
+        str(int(f)) for f in features)
+    modules = {grp: f"tdcr_warp_{grp}_{key}" for grp in ("fused", "probes", "evaluate")}
     rk4 = integrator == "rk4"
     midpoint = integrator == "midpoint"
     stages = STAGES[integrator]
@@ -181,7 +185,7 @@ def make_shooting_kernels(dtype, integrator: str, model: str, dynamic: bool = Fa
         if (nw.status[b] & 1) == 0 and (nw.flags[b] & 1) != 0:
             shoot(nw.x[b], md, ct, sp, b, 1, out)
 
-    @wp.kernel(module="unique", enable_backward=False)
+    @wp.kernel(module=modules["fused"], enable_backward=False)
     def solve_kernel(md: Model, ct: Control, sp: Step, nw: Newton, out: Nodes, x_from: wp.array(dtype=vec6),
                      fresh_jacobian: int, tol: dtype, max_iter: int, max_step: dtype, broyden: int,
                      mask: wp.array(dtype=int)):
@@ -193,13 +197,13 @@ def make_shooting_kernels(dtype, integrator: str, model: str, dynamic: bool = Fa
         for _it in range(max_iter):
             if nw.active[b] == 0:
                 break
-            for j in range(n_probes):
+            for j in range(nw.res.shape[1]):  # a runtime bound: one copy of the integrator, not n_probes
                 if j == 0 or nw.need_jac[b] != 0:
                     nw.res[b, j] = shoot(nt.probe_point(nw.xt[b], j), md, ct, sp, b, wp.where(j == 0, 1, 0), out)
             nt.update(nw, b, residual_scale(md, b), tol, max_iter, max_step, broyden)
         finish(md, ct, sp, nw, out, b)
 
-    @wp.kernel(module="unique", enable_backward=False)
+    @wp.kernel(module=modules["probes"], enable_backward=False)
     def probe_kernel(md: Model, ct: Control, sp: Step, nw: Newton, out: Nodes):
         """Thread (rod, j): j = 0 integrates the trial point (and stores it), j >= 1 its
         finite-difference probes."""
@@ -212,25 +216,25 @@ def make_shooting_kernels(dtype, integrator: str, model: str, dynamic: bool = Fa
             return
         nw.res[b, j] = shoot(nt.probe_point(nw.xt[b], j), md, ct, sp, b, wp.where(j == 0, 1, 0), out)
 
-    @wp.kernel(module="unique", enable_backward=False)
+    @wp.kernel(module=modules["probes"], enable_backward=False)
     def update_kernel(md: Model, nw: Newton, tol: dtype, max_iter: int, max_step: dtype, broyden: int):
         b = wp.tid()
         if nw.active[b] != 0:
             nt.update(nw, b, residual_scale(md, b), tol, max_iter, max_step, broyden)
 
-    @wp.kernel(module="unique", enable_backward=False)
+    @wp.kernel(module=modules["probes"], enable_backward=False)
     def finish_kernel(md: Model, ct: Control, sp: Step, nw: Newton, out: Nodes, mask: wp.array(dtype=int)):
         b = wp.tid()
         if mask[b] != 0:
             finish(md, ct, sp, nw, out, b)
 
-    @wp.kernel(module="unique", enable_backward=False)
+    @wp.kernel(module=modules["probes"], enable_backward=False)
     def begin_kernel(nw: Newton, x_from: wp.array(dtype=vec6), fresh_jacobian: int, mask: wp.array(dtype=int)):
         b = wp.tid()
         if mask[b] != 0:
             nt.begin(nw, b, x_from, fresh_jacobian)
 
-    @wp.kernel(module="unique", enable_backward=False)
+    @wp.kernel(module=modules["evaluate"], enable_backward=False)
     def evaluate_kernel(md: Model, ct: Control, sp: Step, x: wp.array(dtype=vec6), out: Nodes):
         """One integration per rod from x, storing the shape (and the dynamics slots)."""
         b = wp.tid()
@@ -239,4 +243,4 @@ def make_shooting_kernels(dtype, integrator: str, model: str, dynamic: bool = Fa
     return SimpleNamespace(solve=solve_kernel, probe=probe_kernel, update=update_kernel, finish=finish_kernel,
                            begin=begin_kernel, evaluate=evaluate_kernel, Model=Model, Control=Control, Step=Step,
                            Nodes=Nodes, Newton=Newton, vec3=vec3, mat33=mat33, vec6=vec6, mat66=nt.mat,
-                           stages=stages, n_probes=n_probes, nu=N_BASE)
+                           stages=stages, n_probes=n_probes, nu=N_BASE, modules=modules)

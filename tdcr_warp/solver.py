@@ -10,14 +10,47 @@ the host only reads it.
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 import warp as wp
 
-from .build import (Device, Tables, make_control, make_state, make_step, make_work, put_model, set_tensions)
+from .build import (PRECISIONS, Device, Tables, make_control, make_state, make_step, make_work, pack_tendons,
+                    put_model, scene_features, set_tensions)
 from .kernels import layout
+from .kernels.history import make_history_kernels
+from .kernels.rod import MODELS
 from .kernels.shooting import make_shooting_kernels
+from .robot import Robot
 
 CHECK_EVERY = 4  # CUDA: Newton iterations between reads of the active count
+
+
+def _fused(driver: str | None, device) -> bool:
+    return (driver or ("probes" if device.is_cuda else "fused")) == "fused"
+
+
+def _load(kernel, device) -> None:
+    kernel.module.load(device, 1 if device.is_cpu else 256)
+
+
+def load_kernels(robot: Robot, options, device=None, *, dynamic: bool = False) -> float:
+    """Compile (on first use with this kernel cache) or load every kernel that solving this
+    robot with these options needs: statics, and with ``dynamic`` the time step too. Returns
+    the seconds it took, so that callers can report solve rates without it."""
+    t0 = time.perf_counter()
+    if options.model not in MODELS:  # the closed-form rung has no kernels
+        return 0.0
+    dev = wp.get_device(device)
+    features = scene_features(robot, pack_tendons(robot), options.specialize)
+    wdtype = PRECISIONS[options.precision][0]
+    for dyn in (False, True) if dynamic else (False,):
+        k = make_shooting_kernels(wdtype, options.integrator, options.model, dyn, options.rod, features)
+        _load(k.solve if _fused(options.driver, dev) else k.probe, dev)
+        if dyn:
+            _load(k.evaluate, dev)
+            _load(make_history_kernels(wdtype).advance, dev)
+    return time.perf_counter() - t0
 
 
 class Shooting:
@@ -45,9 +78,9 @@ class Shooting:
         self.x_in = wp.zeros(b, dtype=k.vec6, device=device)  # host-given starts
         self.mask = wp.zeros(b, dtype=int, device=device)
         self.all_rods = wp.ones(b, dtype=int, device=device)
-        self.fused = (driver or ("probes" if device.is_cuda else "fused")) == "fused"
-        for kernel in (k.solve, k.begin):  # compile (or load) before threads race to it
-            kernel.module.load(device, 1 if device.is_cpu else 256)
+        self.fused = _fused(driver, device)
+        for kernel in (k.solve if self.fused else k.probe,) + ((k.evaluate,) if dynamic else ()):
+            _load(kernel, device)  # compile (or load) before threads race to it
 
     def set_tensions(self, tau: np.ndarray) -> None:
         set_tensions(self.dev, self.control, tau)

@@ -1,0 +1,122 @@
+"""Ahead-of-time CUDA builds of the package's kernels, on any machine (no GPU needed: Warp
+carries NVRTC), to show that every kernel variant builds for a GPU and to ship cubins.
+
+    python -m tdcr_warp.aot [--arch 90] [--out DIR] [--all] [--jobs N]
+
+A variant is one (precision, integrator, tendon model, rod model, statics/dynamics, feature
+set); each builds three Warp modules (fused driver, probe driver, evaluation) plus the
+BDF-alpha history module of its precision. Without --all a covering set is built: every value
+of every option at least once, the general kernel (all features) and the leanest (none).
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import os
+import sys
+import tempfile
+import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+from typing import NamedTuple
+
+from .kernels.rod import ALL, MODELS, RODS, Features
+from .kernels.shooting import INTEGRATORS
+
+__all__ = ["Variant", "compile_variant", "covering_variants", "all_variants", "main"]
+
+PRECISIONS = ("float64", "float32")
+NONE = Features(gravity=False, point_loads=False, helix=False, drag=False)
+
+
+class Variant(NamedTuple):
+    precision: str
+    integrator: str
+    model: str
+    rod: str
+    dynamic: bool
+    features: Features
+
+    def __str__(self) -> str:
+        feats = "+".join(n for n, on in self.features._asdict().items() if on) or "no features"
+        return (f"{self.precision} {self.integrator} {self.model} {self.rod} "
+                f"{'dynamics' if self.dynamic else 'statics'} [{feats}]")
+
+
+def all_variants() -> list[Variant]:
+    """Every variant the package can build."""
+    return [Variant(prec, integ, model, rod, dyn, Features(*flags))
+            for prec, integ, model, rod, dyn in itertools.product(PRECISIONS, INTEGRATORS, MODELS, RODS, (False, True))
+            for flags in itertools.product((True, False), repeat=4)]
+
+
+def covering_variants() -> list[Variant]:
+    """Every precision, integrator, tendon model, rod model, statics and dynamics, and both
+    extreme feature sets, each at least once (4 variants)."""
+    return [Variant("float64", "rk4", "coupled", "cosserat", False, ALL),
+            Variant("float32", "midpoint", "point", "kirchhoff", True, ALL),
+            Variant("float64", "euler", "coupled", "kirchhoff", True, NONE),
+            Variant("float32", "rk4", "point", "cosserat", False, NONE)]
+
+
+def _modules(v: Variant):
+    import warp as wp
+
+    from .kernels.history import make_history_kernels
+    from .kernels.shooting import make_shooting_kernels
+
+    dtype = wp.float64 if v.precision == "float64" else wp.float32
+    k = make_shooting_kernels(dtype, v.integrator, v.model, v.dynamic, v.rod, v.features)
+    mods = [k.solve.module, k.probe.module]
+    if v.dynamic:
+        mods += [k.evaluate.module, make_history_kernels(dtype).advance.module]
+    return mods
+
+
+def compile_variant(v: Variant, arch: int, out_dir: str) -> list[tuple[str, float, list[str]]]:
+    """Build the variant's modules for sm_<arch> into out_dir: (module, seconds, files) each."""
+    import warp as wp
+
+    wp.init()
+    done = []
+    for m in _modules(v):
+        t0 = time.perf_counter()
+        paths = wp.compile_aot_module(m, arch=arch, module_dir=out_dir, use_ptx=False)
+        done.append((m.name, time.perf_counter() - t0, [str(p) for p in paths]))
+    return done
+
+
+def compile_all(variants: list[Variant], arch: int, out_dir: str, jobs: int, log=print) -> list:
+    """compile_variant for each variant, ``jobs`` processes at a time (NVRTC is single-threaded)."""
+    results = []
+    with ProcessPoolExecutor(max(1, jobs)) as pool:
+        futures = [(v, pool.submit(compile_variant, v, arch, out_dir)) for v in variants]
+        for v, fut in futures:
+            mods = fut.result()
+            results.append((v, mods))
+            log(f"  {v}: " + ", ".join(f"{name.split('_')[2]} {sec:.0f} s" for name, sec, _ in mods))
+    return results
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m tdcr_warp.aot", description=__doc__.splitlines()[0])
+    ap.add_argument("--arch", type=int, default=90, help="CUDA compute capability (90: H100/H200)")
+    ap.add_argument("--out", help="directory for the cubins (default: a temporary one, removed)")
+    ap.add_argument("--all", action="store_true", help=f"every variant ({len(all_variants())}), not the covering set")
+    ap.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="compiles at a time")
+    args = ap.parse_args(argv)
+    variants = all_variants() if args.all else covering_variants()
+    print(f"building {len(variants)} kernel variant(s) for sm_{args.arch} ({args.jobs} at a time) ...", flush=True)
+    t0 = time.perf_counter()
+    with tempfile.TemporaryDirectory() as tmp:
+        out = args.out or tmp
+        Path(out).mkdir(parents=True, exist_ok=True)
+        results = compile_all(variants, args.arch, out, args.jobs)
+        files = sum(len(f) for _, mods in results for _, _, f in mods)
+    print(f"built {files} cubins in {time.perf_counter() - t0:.0f} s" + (f" into {args.out}" if args.out else ""))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,26 @@
+"""CUDA readiness without a GPU: every option of the kernel factories builds for sm_90
+(H100/H200) ahead of time, with Warp's NVRTC on this CPU-only machine. A GPU run is the only
+stronger check (tests/test_cuda.py, skipped here)."""
+
+import os
+
+from tdcr_warp.aot import compile_all, covering_variants
+
+
+def test_every_kernel_option_builds_for_sm90(tmp_path):
+    variants = covering_variants()
+    seen = {field: {getattr(v, field) for v in variants} for field in ("precision", "integrator", "model", "rod",
+                                                                       "dynamic")}
+    assert seen == {"precision": {"float64", "float32"}, "integrator": {"euler", "midpoint", "rk4"},
+                    "model": {"coupled", "point"}, "rod": {"cosserat", "kirchhoff"}, "dynamic": {False, True}}
+    assert {v.features for v in variants} >= {(True,) * 4, (False,) * 4}
+    results = compile_all(variants, 90, str(tmp_path), jobs=os.cpu_count() or 1, log=lambda line: None)
+    for v, mods in results:
+        groups = {name.split("_")[2] for name, _, _ in mods}
+        assert groups == ({"fused", "probes", "evaluate", "history"} if v.dynamic else {"fused", "probes"}), v
+        for name, _, files in mods:
+            assert files, f"{v}: {name} built nothing"
+            for f in files:
+                assert f.endswith(".sm90.cubin"), f
+                with open(f, "rb") as fh:
+                    assert fh.read(4) == b"\x7fELF", f"{f} is not a CUDA binary"
