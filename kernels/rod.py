@@ -72,20 +72,14 @@ def make_structs(dtype, dynamic: bool):
 
         tau: wp.array2d(dtype=dtype)  # (B, K) tensions [N]
 
-    if dynamic:
-        @wp.struct
-        class Step:
-            """The BDF-alpha time step being solved."""
+    @wp.struct
+    class Step:
+        """The BDF-alpha time step being solved (statics: c0 only, never read)."""
 
-            c0: dtype  # y_t = c0 y + y_h [1/s]
+        c0: dtype  # y_t = c0 y + y_h [1/s]
+        if dynamic:
             hist: wp.array3d(dtype=vec3)  # (B, S, SLOT_WIDTH) history y_h per slot
             ycur: wp.array3d(dtype=vec3)  # (B, S, SLOT_WIDTH) values at the trial point
-    else:
-        @wp.struct
-        class Step:
-            """Statics: no time step (a placeholder the kernels never read)."""
-
-            c0: dtype
 
     return SimpleNamespace(Model=Model, Control=Control, Step=Step)
 

@@ -58,28 +58,18 @@ def make_shooting_kernels(dtype, integrator: str, model: str, dynamic: bool = Fa
     sixth = dtype(1.0 / 6.0)
     two = dtype(2.0)
 
-    if dynamic:
-        @wp.struct
-        class Nodes:
-            """The state at the nodes of the last trial point, (B, N+1) each (State.nodes)."""
+    @wp.struct
+    class Nodes:
+        """The state at the nodes of the last trial point, (B, N+1) each (State.nodes)."""
 
-            p: wp.array2d(dtype=vec3)
-            R: wp.array2d(dtype=mat33)
-            n: wp.array2d(dtype=vec3)
-            m: wp.array2d(dtype=vec3)
+        p: wp.array2d(dtype=vec3)
+        R: wp.array2d(dtype=mat33)
+        n: wp.array2d(dtype=vec3)
+        m: wp.array2d(dtype=vec3)
+        orth: wp.array(dtype=dtype)  # max |R^T R - I| over the nodes
+        if dynamic:
             q: wp.array2d(dtype=vec3)
             w: wp.array2d(dtype=vec3)
-            orth: wp.array(dtype=dtype)  # max |R^T R - I| over the nodes
-    else:
-        @wp.struct
-        class Nodes:
-            """The state at the nodes of the last trial point, (B, N+1) each (State.nodes)."""
-
-            p: wp.array2d(dtype=vec3)
-            R: wp.array2d(dtype=mat33)
-            n: wp.array2d(dtype=vec3)
-            m: wp.array2d(dtype=vec3)
-            orth: wp.array(dtype=dtype)  # max |R^T R - I| over the nodes
 
     @wp.func
     def store_node(out: Nodes, b: int, k: int, p: vec3, R: mat33, n: vec3, m: vec3, q: vec3, w: vec3):
