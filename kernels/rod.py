@@ -102,19 +102,33 @@ def make_rod_funcs(dtype, model: str, dynamic: bool, rod: str = "cosserat", feat
     Model, Control, Step = st.Model, st.Control, st.Step
 
     @wp.func
+    def row(b: int, table: wp.array2d(dtype=dtype)):
+        """The row of rod b in a table shared by the batch (1 row) or per rod (B rows): a
+        compare, not an integer division (which cost ~1/3 of a coupled right-hand side)."""
+        return wp.min(b, table.shape[0] - 1)
+
+    @wp.func
+    def row(b: int, table: wp.array3d(dtype=dtype)):
+        return wp.min(b, table.shape[0] - 1)
+
+    @wp.func
+    def row(b: int, table: wp.array2d(dtype=int)):
+        return wp.min(b, table.shape[0] - 1)
+
+    @wp.func
     def rvec(md: Model, b: int, c: int):
-        i = b % md.rod.shape[0]
+        i = row(b, md.rod)
         return vec3(md.rod[i, c], md.rod[i, c + 1], md.rod[i, c + 2])
 
     @wp.func
     def dvec(md: Model, b: int, c: int):
-        i = b % md.dyn.shape[0]
+        i = row(b, md.dyn)
         return vec3(md.dyn[i, c], md.dyn[i, c + 1], md.dyn[i, c + 2])
 
     @wp.func
     def tendon_route(md: Model, b: int, k: int, s: dtype):
         """Body-frame routing r(s) of tendon k and its first two arc-length derivatives."""
-        it = b % md.tendon.shape[0]
+        it = row(b, md.tendon)
         if wp.static(not features.helix):
             return vec3(md.tendon[it, k, T_X0], md.tendon[it, k, T_Y0], zero), vec3(), vec3()
         ra = md.tendon[it, k, T_A]
@@ -129,7 +143,7 @@ def make_rod_funcs(dtype, model: str, dynamic: bool, rod: str = "cosserat", feat
 
     @wp.func
     def term_node(md: Model, b: int, k: int):
-        return md.term_node[b % md.term_node.shape[0], k]
+        return md.term_node[row(b, md.term_node), k]
 
     @wp.func
     def body_strains(md: Model, sp: Step, b: int, rtn: vec3, rtm: vec3, slot: int):
@@ -239,7 +253,7 @@ def make_rod_funcs(dtype, model: str, dynamic: bool, rod: str = "cosserat", feat
             lam_n = -(Rt * rvec(md, b, FE))
         lam_m = vec3()
         if wp.static(dynamic):
-            rho_a = md.dyn[b % md.dyn.shape[0], RHOA]
+            rho_a = md.dyn[row(b, md.dyn), RHOA]
             rho_j = dvec(md, b, RHOJ)
             vt = sp.c0 * v + sp.hist[b, slot, SLOT_V]
             ut = sp.c0 * u + sp.hist[b, slot, SLOT_U]
@@ -340,12 +354,25 @@ def make_rod_funcs(dtype, model: str, dynamic: bool, rod: str = "cosserat", feat
     def node_jumps(md: Model, ct: Control, sp: Step, b: int, s: dtype, R: mat33, n: vec3, m: vec3, q: vec3,
                    w: vec3, node: int, slot_pre: int, slot_post: int, store: int):
         """Point loads at ``node``: n(s+) = n(s-) - F, m(s+) = m(s-) - L (tendon ends, point
-        forces, and in the coupled model the kinks of the tendons that continue)."""
+        forces, and in the coupled model the kinks of the tendons that continue). A node
+        without any of them (most nodes) returns at once, unless dynamics stores its slots."""
+        busy = int(0)
+        for k in range(md.n_tendons):
+            if term_node(md, b, k) == node:
+                busy = 1
+        if wp.static(features.point_loads):
+            for j in range(md.n_points):
+                if md.pnode[row(b, md.pnode), j] == node:
+                    busy = 1
+        if wp.static(dynamic):
+            busy = busy | store
+        if busy == 0:
+            return n, m
         v, u = strains(md, sp, b, R, n, m, slot_pre)
         n, m, jump = tendon_end_loads(md, ct, b, s, R, n, m, v, u, node)
         if wp.static(features.point_loads):
-            ig = b % md.pnode.shape[0]
-            ipf = b % md.pforce.shape[0]
+            ig = row(b, md.pnode)
+            ipf = row(b, md.pforce)
             for j in range(md.n_points):
                 if md.pnode[ig, j] == node:
                     n = n - vec3(md.pforce[ipf, j, 0], md.pforce[ipf, j, 1], md.pforce[ipf, j, 2])
@@ -366,6 +393,6 @@ def make_rod_funcs(dtype, model: str, dynamic: bool, rod: str = "cosserat", feat
         return dtype(1.5) * R - dtype(0.5) * (R * (wp.transpose(R) * R))
 
     return SimpleNamespace(
-        vec3=vec3, mat33=mat33, Model=Model, Control=Control, Step=Step, rvec=rvec, rhs=rhs,
+        vec3=vec3, mat33=mat33, Model=Model, Control=Control, Step=Step, row=row, rvec=rvec, rhs=rhs,
         node_jumps=node_jumps, orthonormalize=orthonormalize,
     )

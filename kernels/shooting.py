@@ -84,8 +84,8 @@ def make_shooting_kernels(dtype, integrator: str, model: str, dynamic: bool = Fa
     @wp.func
     def shoot(x: vec6, md: Model, ct: Control, sp: Step, b: int, store: int, out: Nodes):
         """Integrate base to tip from the scaled unknowns x; return the scaled residual."""
-        L = md.rod[b % md.rod.shape[0], LENGTH]
-        EI = md.rod[b % md.rod.shape[0], KBT]
+        L = md.rod[rf.row(b, md.rod), LENGTH]
+        EI = md.rod[rf.row(b, md.rod), KBT]
         fs = EI / (L * L)
         ms = EI / L
         p = vec3()
@@ -94,7 +94,7 @@ def make_shooting_kernels(dtype, integrator: str, model: str, dynamic: bool = Fa
         m = vec3(x[3], x[4], x[5]) * ms
         q = vec3()
         w = vec3()
-        ig = b % md.grid.shape[0]
+        ig = rf.row(b, md.grid)
         n_int = md.grid.shape[1] - 1
         jslot = n_int * stages  # first of the two slots per node used by the jumps
         orth = zero
@@ -163,7 +163,7 @@ def make_shooting_kernels(dtype, integrator: str, model: str, dynamic: bool = Fa
 
     @wp.func
     def residual_scale(md: Model, b: int):
-        return md.rod[b % md.rod.shape[0], LENGTH]
+        return md.rod[rf.row(b, md.rod), LENGTH]
 
     @wp.func
     def finish(md: Model, ct: Control, sp: Step, nw: Newton, out: Nodes, b: int):
