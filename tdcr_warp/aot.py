@@ -70,7 +70,7 @@ def _modules(v: Variant):
     k = make_shooting_kernels(dtype, v.integrator, v.model, v.dynamic, v.rod, v.features)
     mods = [k.solve.module, k.probe.module]
     if v.dynamic:
-        mods += [k.evaluate.module, make_history_kernels(dtype).advance.module]
+        mods += [k.evaluate.module, make_history_kernels(dtype).end_step.module]
     return mods
 
 

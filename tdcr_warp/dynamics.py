@@ -281,15 +281,15 @@ class _Chunk:
         self.newton = dict(tol=o.tolerance, max_iter=o.max_iter, max_step=o.max_step,
                            broyden=o.jacobian == "broyden")
         sh.evaluate(x0)  # c0 = 0, empty history: the static slots
-        self._advance(at_rest=True)
-        sh.step.c0 = sh.dev.wdtype(sim.coef[0])
         wp.copy(sh.newton.x, sh.x_in)
+        self._end_step(at_rest=True)
+        sh.step.c0 = sh.dev.wdtype(sim.coef[0])
 
-    def _advance(self, at_rest: bool = False) -> None:
-        sh, dev = self.sh, self.sim.dev
-        c0, c1, c2, d1 = (sh.dev.wdtype(c) for c in self.sim.coef)
-        wp.launch(self.hk.advance, dim=sh.step.ycur.shape, device=dev,
-                  inputs=[sh.step.ycur, self.yprev, sh.step.hist, self.ok, c0, c1, c2, d1, int(at_rest)])
+    def _end_step(self, at_rest: bool = False) -> None:
+        sh, out = self.sh, self.sh.nodes
+        wp.launch(self.hk.end_step, dim=sh.b, device=self.sim.dev,
+                  inputs=[sh.step.ycur, self.yprev, sh.step.hist, out.p, out.R, out.q, self.ok, *self.sim.coef,
+                          int(at_rest), *self.tip, sh.newton.x, self.x_prev, self.x_start])
 
     def tips(self):
         return [a.numpy().astype(np.float64) for a in self.tip[:3]]
@@ -297,8 +297,6 @@ class _Chunk:
     def step(self, tau: np.ndarray, tau_prev: np.ndarray, alive: np.ndarray, first: bool):
         sh, o, newton = self.sh, self.sim.opts, self.newton
         sh.set_tensions(tau)
-        wp.launch(self.hk.predict, dim=sh.b, device=self.sim.dev,
-                  inputs=[sh.newton.x, self.x_prev, self.x_start, int(not first)])
         sh.solve(self.x_start, mask=None if alive.all() else alive, fresh_jacobian=first, **newton)
         failed = alive & ~sh.converged()
         if failed.any():
@@ -316,11 +314,7 @@ class _Chunk:
         status = sh.status().copy()
         ok = ((status & layout.CONVERGED) != 0) & alive
         sh.dev.put(self.ok, ok)
-        self._advance()
-        c0, c1, c2, d1 = self.sim.coef
-        out = sh.nodes
-        wp.launch(self.hk.tip_kinematics, dim=sh.b, device=self.sim.dev,
-                  inputs=[out.p, out.R, out.q, self.ok, c0, c1, c2, d1, *self.tip])
+        self._end_step()
         return ok, status, sh.newton.iters.numpy().copy(), sh.newton.resnorm.numpy().astype(np.float64)
 
     def _damping_homotopy(self, failed: np.ndarray) -> np.ndarray:

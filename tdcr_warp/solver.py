@@ -49,7 +49,7 @@ def load_kernels(robot: Robot, options, device=None, *, dynamic: bool = False) -
         _load(k.solve if _fused(options.driver, dev) else k.probe, dev)
         if dyn:
             _load(k.evaluate, dev)
-            _load(make_history_kernels(wdtype).advance, dev)
+            _load(make_history_kernels(wdtype).end_step, dev)
     return time.perf_counter() - t0
 
 
