@@ -16,7 +16,7 @@ from types import SimpleNamespace
 
 import warp as wp
 
-from .layout import KBT, LENGTH, MAX_ITER, TIP_F, TIP_M
+from .layout import CONVERGED, KBT, LENGTH, MAX_ITER, TIP_F, TIP_M
 from .newton import make_newton
 from .rod import ALL, Features, make_rod_funcs
 
@@ -56,7 +56,7 @@ def make_shooting_kernels(dtype, integrator: str, model: str, dynamic: bool = Fa
     zero = dtype(0.0)
     half = dtype(0.5)
     sixth = dtype(1.0 / 6.0)
-    two = dtype(2.0)
+    third = dtype(1.0 / 3.0)  # from Python: a literal inside a kernel would be float32
 
     @wp.struct
     class Nodes:
@@ -82,6 +82,24 @@ def make_shooting_kernels(dtype, integrator: str, model: str, dynamic: bool = Fa
             out.w[b, k] = w
 
     @wp.func
+    def stage_c(st: int):
+        """Where stage st is evaluated, as a fraction of the interval."""
+        if wp.static(rk4):
+            return wp.where(st == 0, zero, wp.where(st == 3, dtype(1.0), half))
+        if wp.static(midpoint):
+            return wp.where(st == 0, zero, half)
+        return zero
+
+    @wp.func
+    def stage_w(st: int):
+        """The weight of stage st (RK4: 1/6, 1/3, 1/3, 1/6; midpoint: 0, 1; Euler: 1)."""
+        if wp.static(rk4):
+            return wp.where(st == 0 or st == 3, sixth, third)
+        if wp.static(midpoint):
+            return wp.where(st == 0, zero, dtype(1.0))
+        return dtype(1.0)
+
+    @wp.func
     def shoot(x: vec6, md: Model, ct: Control, sp: Step, b: int, store: int, out: Nodes):
         """Integrate base to tip from the scaled unknowns x; return the scaled residual."""
         L = md.rod[rf.row(b, md.rod), LENGTH]
@@ -105,47 +123,39 @@ def make_shooting_kernels(dtype, integrator: str, model: str, dynamic: bool = Fa
             s = md.grid[ig, k]
             h = md.grid[ig, k + 1] - s
             sl = k * stages
-            dp1, dR1, dn1, dm1, dq1, dw1 = rf.rhs(md, ct, sp, b, s, p, R, n, m, q, w, k, sl, store)
-            if wp.static(rk4):
-                hh = half * h
-                sm = s + hh
-                dp2, dR2, dn2, dm2, dq2, dw2 = rf.rhs(md, ct, sp, b, sm, p + hh * dp1, R + hh * dR1, n + hh * dn1,
-                                                      m + hh * dm1, q + hh * dq1, w + hh * dw1, k, sl + 1,
-                                                      store)
-                dp3, dR3, dn3, dm3, dq3, dw3 = rf.rhs(md, ct, sp, b, sm, p + hh * dp2, R + hh * dR2, n + hh * dn2,
-                                                      m + hh * dm2, q + hh * dq2, w + hh * dw2, k, sl + 2,
-                                                      store)
-                dp4, dR4, dn4, dm4, dq4, dw4 = rf.rhs(md, ct, sp, b, s + h, p + h * dp3, R + h * dR3, n + h * dn3,
-                                                      m + h * dm3, q + h * dq3, w + h * dw3, k, sl + 3,
-                                                      store)
-                hs = h * sixth
-                p = p + hs * (dp1 + two * (dp2 + dp3) + dp4)
-                R = R + hs * (dR1 + two * (dR2 + dR3) + dR4)
-                n = n + hs * (dn1 + two * (dn2 + dn3) + dn4)
-                m = m + hs * (dm1 + two * (dm2 + dm3) + dm4)
+            # Explicit stages, each from the last: y_i = y + c_i h k_(i-1), y <- y + h sum_i w_i k_i.
+            # A runtime stage count keeps one call site of the right-hand side (compile time).
+            Ap = vec3()
+            AR = mat33()
+            An = vec3()
+            Am = vec3()
+            Aq = vec3()
+            Aw = vec3()
+            kp = vec3()
+            kR = mat33()
+            kn = vec3()
+            km = vec3()
+            kq = vec3()
+            kw = vec3()
+            for st in range(stages + 0 * n_int):
+                ch = stage_c(st) * h
+                kp, kR, kn, km, kq, kw = rf.rhs(md, ct, sp, b, s + ch, p + ch * kp, R + ch * kR, n + ch * kn,
+                                                m + ch * km, q + ch * kq, w + ch * kw, k, sl + st, store)
+                wt = stage_w(st)
+                Ap += wt * kp
+                AR += wt * kR
+                An += wt * kn
+                Am += wt * km
                 if wp.static(dynamic):
-                    q = q + hs * (dq1 + two * (dq2 + dq3) + dq4)
-                    w = w + hs * (dw1 + two * (dw2 + dw3) + dw4)
-            elif wp.static(midpoint):
-                hh = half * h
-                dp2, dR2, dn2, dm2, dq2, dw2 = rf.rhs(md, ct, sp, b, s + hh, p + hh * dp1, R + hh * dR1, n + hh * dn1,
-                                                      m + hh * dm1, q + hh * dq1, w + hh * dw1, k, sl + 1,
-                                                      store)
-                p = p + h * dp2
-                R = R + h * dR2
-                n = n + h * dn2
-                m = m + h * dm2
-                if wp.static(dynamic):
-                    q = q + h * dq2
-                    w = w + h * dw2
-            else:
-                p = p + h * dp1
-                R = R + h * dR1
-                n = n + h * dn1
-                m = m + h * dm1
-                if wp.static(dynamic):
-                    q = q + h * dq1
-                    w = w + h * dw1
+                    Aq += wt * kq
+                    Aw += wt * kw
+            p = p + h * Ap
+            R = R + h * AR
+            n = n + h * An
+            m = m + h * Am
+            if wp.static(dynamic):
+                q = q + h * Aq
+                w = w + h * Aw
             R = rf.orthonormalize(R)
             if store != 0:
                 store_node(out, b, k + 1, p, R, n, m, q, w)
@@ -166,32 +176,36 @@ def make_shooting_kernels(dtype, integrator: str, model: str, dynamic: bool = Fa
         return md.rod[rf.row(b, md.rod), LENGTH]
 
     @wp.func
-    def finish(md: Model, ct: Control, sp: Step, nw: Newton, out: Nodes, b: int):
+    def needs_final_shape(nw: Newton, b: int):
         """A rod that stopped without converging shows the shape of its last accepted point
         (a converged rod stored its shape at its last, accepted, evaluation)."""
-        if nw.active[b] != 0:  # only the split driver can leave a rod active: out of iterations
-            nw.status[b] = MAX_ITER
-            nw.active[b] = 0
-        if (nw.status[b] & 1) == 0 and (nw.flags[b] & 1) != 0:
-            shoot(nw.x[b], md, ct, sp, b, 1, out)
+        return (nw.status[b] & CONVERGED) == 0 and (nw.flags[b] & 1) != 0
 
     @wp.kernel(module=modules["fused"], enable_backward=False)
     def solve_kernel(md: Model, ct: Control, sp: Step, nw: Newton, out: Nodes, x_from: wp.array(dtype=vec6),
                      fresh_jacobian: int, tol: dtype, max_iter: int, max_step: dtype, broyden: int,
                      mask: wp.array(dtype=int)):
-        """The whole Newton loop of rod b (``mask[b]`` = 1) in one thread, from x_from[b]."""
+        """The whole Newton loop of rod b (``mask[b]`` = 1) in one thread, from x_from[b]. One
+        call site of the integrator (compile time): the final shape of a rod that stopped without
+        converging is one more pass of the loop, at its last accepted point."""
         b = wp.tid()
         if mask[b] == 0:
             return
         nt.begin(nw, b, x_from, fresh_jacobian)
-        for _it in range(max_iter):
-            if nw.active[b] == 0:
+        for _it in range(max_iter + 1):
+            solving = nw.active[b]
+            x = nw.xt[b]
+            n_eval = wp.where(nw.need_jac[b] != 0, nw.res.shape[1], 1)
+            if solving == 0:
+                if not needs_final_shape(nw, b):
+                    break
+                x = nw.x[b]
+                n_eval = 1
+            for j in range(n_eval):  # a runtime bound: one copy of the integrator, not n_probes
+                nw.res[b, j] = shoot(nt.probe_point(x, j), md, ct, sp, b, wp.where(j == 0, 1, 0), out)
+            if solving == 0:
                 break
-            for j in range(nw.res.shape[1]):  # a runtime bound: one copy of the integrator, not n_probes
-                if j == 0 or nw.need_jac[b] != 0:
-                    nw.res[b, j] = shoot(nt.probe_point(nw.xt[b], j), md, ct, sp, b, wp.where(j == 0, 1, 0), out)
             nt.update(nw, b, residual_scale(md, b), tol, max_iter, max_step, broyden)
-        finish(md, ct, sp, nw, out, b)
 
     @wp.kernel(module=modules["probes"], enable_backward=False)
     def probe_kernel(md: Model, ct: Control, sp: Step, nw: Newton, out: Nodes):
@@ -215,8 +229,13 @@ def make_shooting_kernels(dtype, integrator: str, model: str, dynamic: bool = Fa
     @wp.kernel(module=modules["probes"], enable_backward=False)
     def finish_kernel(md: Model, ct: Control, sp: Step, nw: Newton, out: Nodes, mask: wp.array(dtype=int)):
         b = wp.tid()
-        if mask[b] != 0:
-            finish(md, ct, sp, nw, out, b)
+        if mask[b] == 0:
+            return
+        if nw.active[b] != 0:  # out of host iterations
+            nw.status[b] = MAX_ITER
+            nw.active[b] = 0
+        if needs_final_shape(nw, b):
+            shoot(nw.x[b], md, ct, sp, b, 1, out)
 
     @wp.kernel(module=modules["probes"], enable_backward=False)
     def begin_kernel(nw: Newton, x_from: wp.array(dtype=vec6), fresh_jacobian: int, mask: wp.array(dtype=int)):
