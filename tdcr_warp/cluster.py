@@ -16,7 +16,7 @@ import os
 import time
 
 from .robot import InputError
-from .sweep import solve_chunk
+from .chunk import solve_chunk
 
 __all__ = ["SweepError", "ray_chunks"]
 

@@ -1,0 +1,86 @@
+"""One chunk of a sweep: the base scene with its sample rows applied per rod, solved by a job.
+Shared by the in-process backend (tdcr_warp.sweep) and the Ray backend (tdcr_warp.cluster)."""
+
+from __future__ import annotations
+
+import copy
+import re
+from dataclasses import replace
+
+import numpy as np
+
+from .robot import InputError
+from .scene import scene_from_dict
+
+__all__ = ["apply_rows", "parse_field", "solve_chunk"]
+
+_TOKEN = re.compile(r"([A-Za-z_]+)(?:\[(\d+)\])?")
+
+
+def parse_field(name: str) -> list:
+    """'tendons[1].offset[0]' -> ['tendons', 1, 'offset', 0]."""
+    path = []
+    for part in name.split("."):
+        m = _TOKEN.fullmatch(part)
+        if not m:
+            raise InputError(f"sweep field {name!r}: cannot parse {part!r}")
+        path.append(m.group(1))
+        if m.group(2) is not None:
+            path.append(int(m.group(2)))
+    return path
+
+
+def apply_rows(data: dict, rows: dict[str, np.ndarray]) -> dict:
+    """A copy of the single-rod scene dict with every swept field given per rod."""
+    out = copy.deepcopy(data)
+    for key in ("sweep", "uncertainty"):
+        out.pop(key, None)
+    b = len(next(iter(rows.values())))
+    tensions = out.get("actuation", {}).get("tensions")
+    if not (isinstance(tensions, list) and len(tensions) == 1):
+        raise InputError("a sweep needs a single-rod scene: [actuation].tensions with one row")
+    out["actuation"]["tensions"] = [copy.deepcopy(tensions[0]) for _ in range(b)]  # fixes the batch size
+    done: set[tuple] = {("actuation", "tensions")}
+    for name, values in rows.items():
+        path = parse_field(name)
+        if path[0] == "actuation" and path[1:2] == ["tensions"]:
+            if len(path) != 3:
+                raise InputError(f"sweep field {name!r}: use actuation.tensions[k] for tendon k")
+            leaf_path, comp = ("actuation", "tensions"), path[2]
+        elif isinstance(path[-1], int):
+            leaf_path, comp = tuple(path[:-1]), path[-1]
+        else:
+            leaf_path, comp = tuple(path), None
+        parent = out
+        for key in leaf_path[:-1]:
+            try:
+                parent = parent[key]
+            except (KeyError, IndexError, TypeError):
+                raise InputError(f"sweep field {name!r}: the scene has no {key!r} there") from None
+        leaf = leaf_path[-1]
+        if leaf not in parent and leaf_path not in done:
+            raise InputError(f"sweep field {name!r}: set a base value for it in the scene")
+        if leaf_path not in done:
+            base = parent[leaf]
+            if isinstance(base, list) and base and isinstance(base[0], list):
+                raise InputError(f"sweep field {name!r}: the base scene must be single-rod")
+            parent[leaf] = [copy.deepcopy(base) for _ in range(b)]
+            done.add(leaf_path)
+        cur = parent[leaf]
+        for r in range(b):
+            if comp is None:  # a scalar, or every component of a vector
+                cur[r] = [float(values[r])] * len(cur[r]) if isinstance(cur[r], list) else float(values[r])
+            else:
+                if not isinstance(cur[r], list) or comp >= len(cur[r]):
+                    raise InputError(f"sweep field {name!r}: index {comp} out of range")
+                cur[r][comp] = float(values[r])
+    return out
+
+
+def solve_chunk(job, data: dict, rows: dict, threads: int | None = None) -> dict:
+    """One chunk: the scene with its sample rows, through ``job``. ``threads`` sets the solver's
+    CPU threads where the scene leaves them open (a Ray task uses the one core it holds)."""
+    scene = scene_from_dict(apply_rows(data, rows))
+    if threads is not None and scene.options.threads is None:
+        scene = replace(scene, options=replace(scene.options, threads=threads))
+    return job(scene)
