@@ -8,13 +8,15 @@
   TIP_F..+2    tip force (world frame) [N]
   TIP_M..+2    tip moment (world frame) [N m]
   LENGTH       rod length [m]
+  FORCE_SCALE  E I / L^2 [N] and MOMENT_SCALE E I / L [N m]: the shooting unknowns and residual are
+               n / FORCE_SCALE and m / MOMENT_SCALE (the one definition of that scaling)
 
 ``tendon`` array, shape (1 or B, K, TENDON_WIDTH): body-frame routing
   r(s) = [X0 + A cos(W s + PHASE), Y0 + A sin(W s + PHASE), 0]   [m], W in [rad/m].
 """
 
-KSE, KBT, USTAR, FE, TIP_F, TIP_M, LENGTH = 0, 3, 6, 9, 12, 15, 18
-ROD_WIDTH = 19
+KSE, KBT, USTAR, FE, TIP_F, TIP_M, LENGTH, FORCE_SCALE, MOMENT_SCALE = 0, 3, 6, 9, 12, 15, 18, 19, 20
+ROD_WIDTH = 21
 
 T_X0, T_Y0, T_A, T_W, T_PHASE = 0, 1, 2, 3, 4
 TENDON_WIDTH = 5

@@ -16,7 +16,7 @@ from types import SimpleNamespace
 
 import warp as wp
 
-from .layout import CONVERGED, KBT, LENGTH, MAX_ITER, TIP_F, TIP_M
+from .layout import CONVERGED, FORCE_SCALE, LENGTH, MAX_ITER, MOMENT_SCALE, TIP_F, TIP_M
 from .newton import make_newton
 from .rod import ALL, Features, make_rod_funcs
 
@@ -102,10 +102,8 @@ def make_shooting_kernels(dtype, integrator: str, model: str, dynamic: bool = Fa
     @wp.func
     def shoot(x: vec6, md: Model, ct: Control, sp: Step, b: int, store: int, out: Nodes):
         """Integrate base to tip from the scaled unknowns x; return the scaled residual."""
-        L = md.rod[rf.row(b, md.rod), LENGTH]
-        EI = md.rod[rf.row(b, md.rod), KBT]
-        fs = EI / (L * L)
-        ms = EI / L
+        fs = md.rod[rf.row(b, md.rod), FORCE_SCALE]
+        ms = md.rod[rf.row(b, md.rod), MOMENT_SCALE]
         p = vec3()
         R = wp.identity(3, dtype)
         n = vec3(x[0], x[1], x[2]) * fs

@@ -76,8 +76,9 @@ def pack_rod(robot: Robot) -> np.ndarray:
     """Per-rod parameter rows, shape (1 or B, layout.ROD_WIDTH)."""
     sec = robot.section()
     fe = (robot.density * sec["area"])[:, None] * robot.gravity
-    return _columns([sec["kse"], sec["kbt"], robot.precurvature, fe, robot.tip_force, robot.tip_moment,
-                     robot.length[:, None]], layout.ROD_WIDTH)
+    L, EI = robot.length[:, None], sec["kbt"][:, :1]
+    return _columns([sec["kse"], sec["kbt"], robot.precurvature, fe, robot.tip_force, robot.tip_moment, L,
+                     EI / (L * L), EI / L], layout.ROD_WIDTH)
 
 
 def pack_dynamics(robot: Robot) -> np.ndarray:
@@ -117,8 +118,8 @@ class Tables:
     """The packed host tables of one robot at one node count (leading dimension 1 or B).
 
     rod, dyn, tendon, pforce: see kernels/layout.py; grid (1|B, N+1) [m]; term_node (1|B, K)
-    and pnode (1|B, P): node indices; scales (1|B, 6): factors from [n(0), m(0)] to the
-    scaled unknowns [L^2/EI, L/EI]; stiffness (1|B, 6): the Kse and Kbt diagonals;
+    and pnode (1|B, P): node indices; scales (1|B, 6): the kernels' force and moment scales
+    [EI/L^2 x 3, EI/L x 3] (scaled unknowns = [n(0), m(0)] / scales); stiffness (1|B, 6): the Kse and Kbt diagonals;
     features: the physics the robot contains; straight: its Newton start.
     """
 
@@ -140,11 +141,10 @@ class Tables:
         point_s, point_f = robot.pack_point_forces()
         grid, term_node, point_node = make_grid(robot.length, tendon_len, point_s, nodes)
         sec = robot.section()
-        L = robot.length
-        EI = sec["kbt"][:, 0]
-        f, m = np.broadcast_arrays(L**2 / EI, L / EI)
+        rod = pack_rod(robot)
+        f, m = rod[:, layout.FORCE_SCALE], rod[:, layout.MOMENT_SCALE]
         tendon = pack_tendons(robot)
-        return cls(rod=pack_rod(robot), dyn=pack_dynamics(robot), tendon=tendon, grid=grid, term_node=term_node,
+        return cls(rod=rod, dyn=pack_dynamics(robot), tendon=tendon, grid=grid, term_node=term_node,
                    pforce=point_f, pnode=point_node,
                    scales=np.concatenate([np.repeat(f[:, None], 3, 1), np.repeat(m[:, None], 3, 1)], 1),
                    stiffness=np.concatenate(np.broadcast_arrays(sec["kse"], sec["kbt"]), axis=1),

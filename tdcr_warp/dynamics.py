@@ -121,7 +121,7 @@ class Simulator:
         if tables.grid.shape[1] != static.s.shape[1]:
             raise InputError("initial: its node count differs from the simulation's")
         self.grid = np.broadcast_to(tables.grid, (self.B, tables.grid.shape[1]))
-        x0 = static.base_wrench * tables.scale_rows(self.B)
+        x0 = static.base_wrench / tables.scale_rows(self.B)
         self.chunks = split(self.B, self.dev, self.opts.threads)
         self.parts = [_Chunk(self, tables, lo, hi, tau[lo:hi], x0[lo:hi], static.tip_position[lo:hi])
                       for lo, hi in self.chunks]

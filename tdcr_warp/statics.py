@@ -150,9 +150,9 @@ class StaticProblem:
         if initial is not None:
             if initial.base_wrench.shape[0] != B:
                 raise InputError(f"initial: warm start has {initial.base_wrench.shape[0]} rods, batch has {B}")
-            x0, J0 = initial.base_wrench * scales, initial.jacobian
+            x0, J0 = initial.base_wrench / scales, initial.jacobian
         else:
-            x0, J0 = tables.straight.guess(tau) * scales, None
+            x0, J0 = tables.straight.guess(tau) / scales, None
         newton = dict(tol=opts.tolerance, max_iter=opts.max_iter, max_step=opts.max_step,
                       broyden=opts.jacobian == "broyden")
 
@@ -173,7 +173,7 @@ class StaticProblem:
 
         parts = parallel(run, list(range(len(self.chunks))))
         out = parts[0] if len(parts) == 1 else {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
-        out["base_wrench"] = out.pop("x") / scales
+        out["base_wrench"] = out.pop("x") * scales
         grid = tables.grid
         s = np.broadcast_to(grid, (B, grid.shape[1])).astype(np.float64)
         return StaticSolution(s=s, options=opts, **out)
