@@ -17,10 +17,14 @@ from .layout import CONVERGED, MAX_ITER, NONFINITE, PRECISION_LIMITED, SINGULAR,
 
 @functools.cache
 def make_newton(dtype, nu: int, central: bool):
-    """central: Jacobian by central differences (2 nu probes) instead of forward (nu)."""
+    """central: Jacobian by central differences (2 nu probes) instead of forward (nu). With
+    forward differences the residual table has one more column: the trial point evaluated like
+    the probes, the base of their differences when the probes are a cheaper approximation of the
+    problem (``update(..., coarse=1)``)."""
     vec = wp.types.vector(nu, dtype)
     mat = wp.types.matrix((nu, nu), dtype)
     n_probes = 1 + (2 * nu if central else nu)  # the trial point + its finite-difference probes
+    width = n_probes + (0 if central else 1)  # + the base of approximate probes
     zero = dtype(0.0)
     half = dtype(0.5)
     f64 = dtype == wp.float64
@@ -40,7 +44,7 @@ def make_newton(dtype, nu: int, central: bool):
         r: wp.array(dtype=vec)  # residual at x
         J: wp.array(dtype=mat)  # Jacobian dr/dx at x
         xt: wp.array(dtype=vec)  # trial point
-        res: wp.array2d(dtype=vec)  # (B, n_probes) residuals of the trial point and its probes
+        res: wp.array2d(dtype=vec)  # (B, width) residuals of the trial point, its probes (and their base)
         active: wp.array(dtype=int)  # 1 while the rod is solving
         need_jac: wp.array(dtype=int)  # 1: evaluate the probes at the trial point
         flags: wp.array(dtype=int)
@@ -57,7 +61,9 @@ def make_newton(dtype, nu: int, central: bool):
 
     @wp.func
     def probe_point(x: vec, j: int):
-        """Probe j of the trial point x (j = 0: x itself)."""
+        """Probe j of the trial point x (j = 0 and j = n_probes, the base: x itself)."""
+        if j >= n_probes:
+            return x
         if j > nu:
             x[j - nu - 1] = x[j - nu - 1] - fd_step(x[j - nu - 1])
         elif j > 0:
@@ -124,12 +130,15 @@ def make_newton(dtype, nu: int, central: bool):
         wp.atomic_add(nw.n_active, 0, 1)
 
     @wp.func
-    def update(nw: Newton, i: int, scale: dtype, tol: dtype, max_iter: int, max_step: dtype, broyden: int):
+    def update(nw: Newton, i: int, scale: dtype, tol: dtype, max_iter: int, max_step: dtype, broyden: int,
+               coarse: int):
         """One damped (quasi-)Newton update of rod i from the residuals in ``nw.res[i]``, and
         its verdict. ``scale`` turns |r| into the convergence measure (a length [m]).
 
         broyden = 1: rank-one updates of J between finite-difference rebuilds (a rebuild when
         a step fails to reduce |r|); broyden = 0: a finite-difference J at every new point.
+        coarse = 1: the probes approximate the problem; their differences are taken from the
+        trial point evaluated the same way (``res[i, n_probes]``), and Broyden corrects the rest.
         """
         rt = nw.res[i, 0]
         fl = nw.flags[i]
@@ -137,7 +146,7 @@ def make_newton(dtype, nu: int, central: bool):
         fresh = (fl >> 1) & 1
         refreshed = (fl >> 2) & 1
         nj = nw.need_jac[i]
-        nw.n_shoot[i] = nw.n_shoot[i] + 1 + (n_probes - 1) * nj
+        nw.n_shoot[i] = nw.n_shoot[i] + 1 + (n_probes - 1) * nj + coarse
         it = nw.iters[i] + 1
         nw.iters[i] = it
         finite = wp.isfinite(wp.length_sq(rt))
@@ -148,8 +157,11 @@ def make_newton(dtype, nu: int, central: bool):
             xi = nw.xt[i]
             if nj != 0:
                 Jn = mat()
+                base = rt
+                if coarse != 0:
+                    base = nw.res[i, n_probes]
                 for c in range(nu):
-                    col = (nw.res[i, c + 1] - rt) / fd_step(xi[c])
+                    col = (nw.res[i, c + 1] - base) / fd_step(xi[c])
                     if wp.static(central):
                         col = (nw.res[i, c + 1] - nw.res[i, c + 1 + nu]) / (dtype(2.0) * fd_step(xi[c]))
                     for row in range(nu):
@@ -226,5 +238,5 @@ def make_newton(dtype, nu: int, central: bool):
         nw.resnorm[i] = dtype(wp.inf)
         wp.atomic_add(nw.n_active, 0, 1)
 
-    return SimpleNamespace(Newton=Newton, vec=vec, mat=mat, n_probes=n_probes, nu=nu, probe_point=probe_point,
+    return SimpleNamespace(Newton=Newton, vec=vec, mat=mat, n_probes=n_probes, width=width, nu=nu, probe_point=probe_point,
                            solve_dense=solve_dense, update=update, begin=begin, fd_step=fd_step)

@@ -351,11 +351,8 @@ def make_rod_funcs(dtype, model: str, dynamic: bool, rod: str = "cosserat", feat
         return n, m
 
     @wp.func
-    def node_jumps(md: Model, ct: Control, sp: Step, b: int, s: dtype, R: mat33, n: vec3, m: vec3, q: vec3,
-                   w: vec3, node: int, slot_pre: int, slot_post: int, store: int):
-        """Point loads at ``node``: n(s+) = n(s-) - F, m(s+) = m(s-) - L (tendon ends, point
-        forces, and in the coupled model the kinks of the tendons that continue). A node
-        without any of them (most nodes) returns at once, unless dynamics stores its slots."""
+    def node_busy(md: Model, b: int, node: int):
+        """1 if a tendon ends or a point force acts at ``node``."""
         busy = int(0)
         for k in range(md.n_tendons):
             if term_node(md, b, k) == node:
@@ -364,6 +361,15 @@ def make_rod_funcs(dtype, model: str, dynamic: bool, rod: str = "cosserat", feat
             for j in range(md.n_points):
                 if md.pnode[row(b, md.pnode), j] == node:
                     busy = 1
+        return busy
+
+    @wp.func
+    def node_jumps(md: Model, ct: Control, sp: Step, b: int, s: dtype, R: mat33, n: vec3, m: vec3, q: vec3,
+                   w: vec3, node: int, slot_pre: int, slot_post: int, store: int):
+        """Point loads at ``node``: n(s+) = n(s-) - F, m(s+) = m(s-) - L (tendon ends, point
+        forces, and in the coupled model the kinks of the tendons that continue). A node
+        without any of them (most nodes) returns at once, unless dynamics stores its slots."""
+        busy = node_busy(md, b, node)
         if wp.static(dynamic):
             busy = busy | store
         if busy == 0:
@@ -394,5 +400,5 @@ def make_rod_funcs(dtype, model: str, dynamic: bool, rod: str = "cosserat", feat
 
     return SimpleNamespace(
         vec3=vec3, mat33=mat33, Model=Model, Control=Control, Step=Step, row=row, rvec=rvec, rhs=rhs,
-        node_jumps=node_jumps, orthonormalize=orthonormalize,
+        node_jumps=node_jumps, node_busy=node_busy, orthonormalize=orthonormalize,
     )

@@ -46,6 +46,7 @@ def make_shooting_kernels(dtype, integrator: str, model: str, dynamic: bool = Fa
     nt = make_newton(dtype, N_BASE, dynamic)
     Newton, vec6 = nt.Newton, nt.vec
     n_probes = nt.n_probes
+    width = nt.width
     # One Warp module per variant and driver: a solve compiles only what its device runs.
     key = f"{wp.types.type_repr(dtype)}_{integrator}_{model}_{'dyn' if dynamic else 'static'}_{rod}_" + "".join(
         str(int(f)) for f in features)
@@ -100,8 +101,10 @@ def make_shooting_kernels(dtype, integrator: str, model: str, dynamic: bool = Fa
         return dtype(1.0)
 
     @wp.func
-    def shoot(x: vec6, md: Model, ct: Control, sp: Step, b: int, store: int, out: Nodes):
-        """Integrate base to tip from the scaled unknowns x; return the scaled residual."""
+    def shoot(x: vec6, md: Model, ct: Control, sp: Step, b: int, store: int, coarse: int, out: Nodes):
+        """Integrate base to tip from the scaled unknowns x; return the scaled residual.
+        coarse = 1 (statics, never with store): steps over two intervals wherever no load sits
+        on the node between them, about half the work (the probes of a first Jacobian)."""
         fs = md.rod[rf.row(b, md.rod), FORCE_SCALE]
         ms = md.rod[rf.row(b, md.rod), MOMENT_SCALE]
         p = vec3()
@@ -117,9 +120,14 @@ def make_shooting_kernels(dtype, integrator: str, model: str, dynamic: bool = Fa
         if store != 0:
             store_node(out, b, 0, p, R, n, m, q, w)
         n, m = rf.node_jumps(md, ct, sp, b, zero, R, n, m, q, w, 0, jslot, jslot + 1, store)
-        for k in range(n_int):
+        k = int(0)
+        while k < n_int:
+            k1 = k + 1
+            if coarse != 0 and k + 2 <= n_int:
+                if rf.node_busy(md, b, k1) == 0:
+                    k1 = k + 2
             s = md.grid[ig, k]
-            h = md.grid[ig, k + 1] - s
+            h = md.grid[ig, k1] - s
             sl = k * stages
             # Explicit stages, each from the last: y_i = y + c_i h k_(i-1), y <- y + h sum_i w_i k_i.
             # A runtime stage count keeps one call site of the right-hand side (compile time).
@@ -156,13 +164,14 @@ def make_shooting_kernels(dtype, integrator: str, model: str, dynamic: bool = Fa
                 w = w + h * Aw
             R = rf.orthonormalize(R)
             if store != 0:
-                store_node(out, b, k + 1, p, R, n, m, q, w)
+                store_node(out, b, k1, p, R, n, m, q, w)
                 E = wp.transpose(R) * R - wp.identity(3, dtype)
                 for i in range(3):
                     for j in range(3):
                         orth = wp.max(orth, wp.abs(E[i, j]))
-            js = jslot + 2 * (k + 1)
-            n, m = rf.node_jumps(md, ct, sp, b, md.grid[ig, k + 1], R, n, m, q, w, k + 1, js, js + 1, store)
+            js = jslot + 2 * k1
+            n, m = rf.node_jumps(md, ct, sp, b, md.grid[ig, k1], R, n, m, q, w, k1, js, js + 1, store)
+            k = k1
         if store != 0:
             out.orth[b] = orth
         rn = (n - rf.rvec(md, b, TIP_F)) / fs
@@ -174,6 +183,25 @@ def make_shooting_kernels(dtype, integrator: str, model: str, dynamic: bool = Fa
         return md.rod[rf.row(b, md.rod), LENGTH]
 
     @wp.func
+    def coarse_now(nw: Newton, b: int, coarse_jacobian: int, broyden: int):
+        """1 where the probes of this iteration may run coarse: the first Jacobian of a Broyden
+        solve (a rebuild after a failed step, or plain Newton, uses the full grid)."""
+        if wp.static(dynamic):
+            return 0
+        if coarse_jacobian != 0 and broyden != 0 and nw.need_jac[b] != 0 and nw.iters[b] == 0:
+            return 1
+        return 0
+
+    @wp.func
+    def evaluation(nw: Newton, b: int, j: int, coarse: int):
+        """What evaluation j of rod b is this iteration: (store the shape, coarse), or skip (-1)."""
+        if j == 0:
+            return 1
+        if nw.need_jac[b] == 0 or (j == n_probes and coarse == 0):
+            return -1
+        return 0
+
+    @wp.func
     def needs_final_shape(nw: Newton, b: int):
         """A rod that stopped without converging shows the shape of its last accepted point
         (a converged rod stored its shape at its last, accepted, evaluation)."""
@@ -182,7 +210,7 @@ def make_shooting_kernels(dtype, integrator: str, model: str, dynamic: bool = Fa
     @wp.kernel(module=modules["fused"], enable_backward=False)
     def solve_kernel(md: Model, ct: Control, sp: Step, nw: Newton, out: Nodes, x_from: wp.array(dtype=vec6),
                      fresh_jacobian: int, tol: dtype, max_iter: int, max_step: dtype, broyden: int,
-                     mask: wp.array(dtype=int)):
+                     coarse_jacobian: int, mask: wp.array(dtype=int)):
         """The whole Newton loop of rod b (``mask[b]`` = 1) in one thread, from x_from[b]. One
         call site of the integrator (compile time): the final shape of a rod that stopped without
         converging is one more pass of the loop, at its last accepted point."""
@@ -193,36 +221,42 @@ def make_shooting_kernels(dtype, integrator: str, model: str, dynamic: bool = Fa
         for _it in range(max_iter + 1):
             solving = nw.active[b]
             x = nw.xt[b]
-            n_eval = wp.where(nw.need_jac[b] != 0, nw.res.shape[1], 1)
+            n_eval = nw.res.shape[1]
+            coarse = coarse_now(nw, b, coarse_jacobian, broyden)
             if solving == 0:
                 if not needs_final_shape(nw, b):
                     break
                 x = nw.x[b]
                 n_eval = 1
             for j in range(n_eval):  # a runtime bound: one copy of the integrator, not n_probes
-                nw.res[b, j] = shoot(nt.probe_point(x, j), md, ct, sp, b, wp.where(j == 0, 1, 0), out)
+                e = evaluation(nw, b, j, coarse)
+                if e >= 0:
+                    nw.res[b, j] = shoot(nt.probe_point(x, j), md, ct, sp, b, e, coarse * (1 - e), out)
             if solving == 0:
                 break
-            nt.update(nw, b, residual_scale(md, b), tol, max_iter, max_step, broyden)
+            nt.update(nw, b, residual_scale(md, b), tol, max_iter, max_step, broyden, coarse)
 
     @wp.kernel(module=modules["probes"], enable_backward=False)
-    def probe_kernel(md: Model, ct: Control, sp: Step, nw: Newton, out: Nodes):
+    def probe_kernel(md: Model, ct: Control, sp: Step, nw: Newton, out: Nodes, broyden: int, coarse_jacobian: int):
         """Thread (rod, j): j = 0 integrates the trial point (and stores it), j >= 1 its
-        finite-difference probes."""
+        finite-difference probes (and their base)."""
         tid = wp.tid()
-        b = tid // n_probes
-        j = tid - b * n_probes
+        b = tid // width
+        j = tid - b * width
         if nw.active[b] == 0:
             return
-        if j > 0 and nw.need_jac[b] == 0:
-            return
-        nw.res[b, j] = shoot(nt.probe_point(nw.xt[b], j), md, ct, sp, b, wp.where(j == 0, 1, 0), out)
+        coarse = coarse_now(nw, b, coarse_jacobian, broyden)
+        e = evaluation(nw, b, j, coarse)
+        if e >= 0:
+            nw.res[b, j] = shoot(nt.probe_point(nw.xt[b], j), md, ct, sp, b, e, coarse * (1 - e), out)
 
     @wp.kernel(module=modules["probes"], enable_backward=False)
-    def update_kernel(md: Model, nw: Newton, tol: dtype, max_iter: int, max_step: dtype, broyden: int):
+    def update_kernel(md: Model, nw: Newton, tol: dtype, max_iter: int, max_step: dtype, broyden: int,
+                      coarse_jacobian: int):
         b = wp.tid()
         if nw.active[b] != 0:
-            nt.update(nw, b, residual_scale(md, b), tol, max_iter, max_step, broyden)
+            nt.update(nw, b, residual_scale(md, b), tol, max_iter, max_step, broyden,
+                      coarse_now(nw, b, coarse_jacobian, broyden))
 
     @wp.kernel(module=modules["probes"], enable_backward=False)
     def finish_kernel(md: Model, ct: Control, sp: Step, nw: Newton, out: Nodes, mask: wp.array(dtype=int)):
@@ -233,7 +267,7 @@ def make_shooting_kernels(dtype, integrator: str, model: str, dynamic: bool = Fa
             nw.status[b] = MAX_ITER
             nw.active[b] = 0
         if needs_final_shape(nw, b):
-            shoot(nw.x[b], md, ct, sp, b, 1, out)
+            shoot(nw.x[b], md, ct, sp, b, 1, 0, out)
 
     @wp.kernel(module=modules["probes"], enable_backward=False)
     def begin_kernel(nw: Newton, x_from: wp.array(dtype=vec6), fresh_jacobian: int, mask: wp.array(dtype=int)):
@@ -245,9 +279,9 @@ def make_shooting_kernels(dtype, integrator: str, model: str, dynamic: bool = Fa
     def evaluate_kernel(md: Model, ct: Control, sp: Step, x: wp.array(dtype=vec6), out: Nodes):
         """One integration per rod from x, storing the shape (and the dynamics slots)."""
         b = wp.tid()
-        shoot(x[b], md, ct, sp, b, 1, out)
+        shoot(x[b], md, ct, sp, b, 1, 0, out)
 
     return SimpleNamespace(solve=solve_kernel, probe=probe_kernel, update=update_kernel, finish=finish_kernel,
                            begin=begin_kernel, evaluate=evaluate_kernel, Model=Model, Control=Control, Step=Step,
                            Nodes=Nodes, Newton=Newton, vec3=vec3, mat33=mat33, vec6=vec6, mat66=nt.mat,
-                           stages=stages, n_probes=n_probes, nu=N_BASE, modules=modules)
+                           stages=stages, n_probes=n_probes, width=nt.width, nu=N_BASE, modules=modules)

@@ -299,7 +299,7 @@ def make_work(kern, dev: Device, b: int):
     for name in ("x", "r", "xt"):
         setattr(nw, name, wp.zeros(b, dtype=kern.vec6, device=d))
     nw.J = wp.zeros(b, dtype=kern.mat66, device=d)
-    nw.res = wp.zeros((b, kern.n_probes), dtype=kern.vec6, device=d)
+    nw.res = wp.zeros((b, kern.width), dtype=kern.vec6, device=d)
     for name in ("active", "need_jac", "flags", "status", "iters", "n_shoot"):
         setattr(nw, name, wp.zeros(b, dtype=int, device=d))
     nw.lam = wp.zeros(b, dtype=dev.wdtype, device=d)

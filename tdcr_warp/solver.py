@@ -24,6 +24,7 @@ from .kernels.shooting import make_shooting_kernels
 from .robot import Robot
 
 CHECK_EVERY = 4  # CUDA: Newton iterations between reads of the active count
+COARSE_MIN_NODES = 16  # statics: coarse first-Jacobian probes from this many intervals on
 
 
 def _fused(driver: str | None, device) -> bool:
@@ -79,6 +80,9 @@ class Shooting:
         self.mask = wp.zeros(b, dtype=int, device=device)
         self.all_rods = wp.ones(b, dtype=int, device=device)
         self.fused = _fused(driver, device)
+        # statics: the first Jacobian of a Broyden solve from probes over double steps, where that
+        # stays accurate (RK4, error ~h^4, on a fine enough grid; Broyden corrects the rest)
+        self.coarse_jacobian = int(not dynamic and integrator == "rk4" and n1 - 1 >= COARSE_MIN_NODES)
         for kernel in (k.solve if self.fused else k.probe,) + ((k.evaluate,) if dynamic else ()):
             _load(kernel, device)  # compile (or load) before threads race to it
 
@@ -115,7 +119,7 @@ class Shooting:
         if self.fused:
             wp.launch(k.solve, dim=self.b, device=self.device,
                       inputs=[self.model, self.control, self.step, nw, self.nodes, x_from, int(fresh_jacobian),
-                              *newton, m])
+                              *newton, self.coarse_jacobian, m])
             return
         nw.n_active.zero_()
         wp.launch(k.begin, dim=self.b, device=self.device, inputs=[nw, x_from, int(fresh_jacobian), m])
@@ -128,10 +132,11 @@ class Shooting:
         k, nw = self.kern, self.newton
 
         def iteration():
-            wp.launch(k.probe, dim=self.b * k.n_probes, device=self.device,
-                      inputs=[self.model, self.control, self.step, nw, self.nodes])
+            wp.launch(k.probe, dim=self.b * k.width, device=self.device,
+                      inputs=[self.model, self.control, self.step, nw, self.nodes, newton[3], self.coarse_jacobian])
             nw.n_active.zero_()
-            wp.launch(k.update, dim=self.b, device=self.device, inputs=[self.model, nw, *newton])
+            wp.launch(k.update, dim=self.b, device=self.device,
+                      inputs=[self.model, nw, *newton, self.coarse_jacobian])
 
         for done in range(0, max_iter, CHECK_EVERY):
             for _ in range(min(CHECK_EVERY, max_iter - done)):

@@ -133,7 +133,7 @@ def test_newton_any_size(central):
             for j in range(nt.n_probes):
                 if j == 0 or nw.need_jac[b] != 0:
                     nw.res[b, j] = residual(nt.probe_point(nw.xt[b], j), c[b])
-            nt.update(nw, b, wp.float64(1.0), wp.float64(1e-12), 40, wp.float64(10.0), 1)
+            nt.update(nw, b, wp.float64(1.0), wp.float64(1e-12), 40, wp.float64(10.0), 1, 0)
 
     B = 3
     root = np.tile(np.arange(1, nu + 1) / nu, (B, 1)) * np.array([[1.0], [-0.5], [2.0]])
@@ -142,7 +142,7 @@ def test_newton_any_size(central):
     for name in ("x", "r", "xt"):
         setattr(nw, name, wp.zeros(B, dtype=vec, device="cpu"))
     nw.J = wp.zeros(B, dtype=nt.mat, device="cpu")
-    nw.res = wp.zeros((B, nt.n_probes), dtype=vec, device="cpu")
+    nw.res = wp.zeros((B, nt.width), dtype=vec, device="cpu")
     for name in ("active", "need_jac", "flags", "status", "iters", "n_shoot"):
         setattr(nw, name, wp.zeros(B, dtype=int, device="cpu"))
     nw.lam = wp.zeros(B, dtype=wp.float64, device="cpu")
