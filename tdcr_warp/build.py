@@ -90,17 +90,9 @@ def pack_dynamics(robot: Robot) -> np.ndarray:
 
 
 def pack_tendons(robot: Robot) -> np.ndarray:
-    """Tendon routing rows, shape (1 or B, K, layout.TENDON_WIDTH)."""
-    if not robot.tendons:
-        return np.zeros((1, 0, layout.TENDON_WIDTH))
-    lengths = robot.tendon_lengths()
-    rows = []
-    for k, t in enumerate(robot.tendons):
-        w = 2.0 * np.pi * t.turns / lengths[:, k]
-        parts = np.broadcast_arrays(t.offset[:, 0], t.offset[:, 1], t.helix_radius, w, t.phase)
-        rows.append(np.stack(parts, axis=-1))
-    b = max(r.shape[0] for r in rows)
-    return np.stack([np.broadcast_to(r, (b, layout.TENDON_WIDTH)) for r in rows], axis=1)
+    """Tendon routing rows, shape (1 or B, K, layout.TENDON_WIDTH) (Robot.routing_parameters)."""
+    cols = dict(zip((layout.T_X0, layout.T_Y0, layout.T_A, layout.T_W, layout.T_PHASE), robot.routing_parameters()))
+    return np.stack([cols[c] for c in range(layout.TENDON_WIDTH)], axis=-1)
 
 
 def scene_features(robot: Robot, tendon: np.ndarray, specialize: bool) -> Features:
@@ -118,9 +110,8 @@ class Tables:
     """The packed host tables of one robot at one node count (leading dimension 1 or B).
 
     rod, dyn, tendon, pforce: see kernels/layout.py; grid (1|B, N+1) [m]; term_node (1|B, K)
-    and pnode (1|B, P): node indices; scales (1|B, 6): the kernels' force and moment scales
-    [EI/L^2 x 3, EI/L x 3] (scaled unknowns = [n(0), m(0)] / scales); stiffness (1|B, 6): the Kse and Kbt diagonals;
-    features: the physics the robot contains; straight: its Newton start.
+    and pnode (1|B, P): node indices; features: the physics the robot contains; straight: its
+    Newton start. Derived from the rod table: ``scale_rows`` and ``stiffness``.
     """
 
     rod: np.ndarray
@@ -130,8 +121,6 @@ class Tables:
     term_node: np.ndarray
     pforce: np.ndarray
     pnode: np.ndarray
-    scales: np.ndarray
-    stiffness: np.ndarray
     features: Features
     straight: StraightRod
 
@@ -140,15 +129,10 @@ class Tables:
         tendon_len = robot.tendon_lengths() if robot.tendons else np.zeros((1, 0))
         point_s, point_f = robot.pack_point_forces()
         grid, term_node, point_node = make_grid(robot.length, tendon_len, point_s, nodes)
-        sec = robot.section()
-        rod = pack_rod(robot)
-        f, m = rod[:, layout.FORCE_SCALE], rod[:, layout.MOMENT_SCALE]
         tendon = pack_tendons(robot)
-        return cls(rod=rod, dyn=pack_dynamics(robot), tendon=tendon, grid=grid, term_node=term_node,
-                   pforce=point_f, pnode=point_node,
-                   scales=np.concatenate([np.repeat(f[:, None], 3, 1), np.repeat(m[:, None], 3, 1)], 1),
-                   stiffness=np.concatenate(np.broadcast_arrays(sec["kse"], sec["kbt"]), axis=1),
-                   features=scene_features(robot, tendon, specialize), straight=StraightRod.of(robot))
+        return cls(rod=pack_rod(robot), dyn=pack_dynamics(robot), tendon=tendon, grid=grid, term_node=term_node,
+                   pforce=point_f, pnode=point_node, features=scene_features(robot, tendon, specialize),
+                   straight=StraightRod.of(robot))
 
     def rows(self, name: str, lo: int, hi: int) -> np.ndarray:
         """Rows lo:hi of table ``name``; a shared table (leading 1) stays as it is."""
@@ -156,7 +140,15 @@ class Tables:
         return t[lo:hi] if t.shape[0] > 1 else t
 
     def scale_rows(self, B: int) -> np.ndarray:
-        return np.broadcast_to(self.scales, (B, 6))
+        """(B, 6) the kernels' force and moment scales [EI/L^2 x 3, EI/L x 3]: the scaled unknowns
+        are [n(0), m(0)] / scales."""
+        f, m = self.rod[:, layout.FORCE_SCALE], self.rod[:, layout.MOMENT_SCALE]
+        return np.broadcast_to(np.stack([f, f, f, m, m, m], axis=1), (B, 6))
+
+    @property
+    def stiffness(self) -> np.ndarray:
+        """(1|B, 6) the Kse and Kbt diagonals [N, N m^2]."""
+        return self.rod[:, layout.KSE:layout.KBT + 3]
 
 
 def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:

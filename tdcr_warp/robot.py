@@ -215,20 +215,26 @@ class Robot:
             v.flags.writeable = False
         return sec
 
-    def tendon_routing(self, s) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Body-frame routing of every tendon at arc length s [m] (a number, or (B,) or (B, K)):
-        r(s) and its first two arc-length derivatives, each (1 or B, K, 3)."""
-        K = self.n_tendons
-        if K == 0:
-            z = np.zeros((1, 0, 3))
-            return z, z, z
+    def routing_parameters(self) -> tuple[np.ndarray, ...]:
+        """Per tendon the routing r(s) = [x0 + a cos(w s + phase), y0 + a sin(w s + phase), 0]:
+        x0, y0, a [m], w [rad/m], phase [rad], each (1 or B, K)."""
+        if not self.tendons:
+            return tuple(np.zeros((1, 0)) for _ in range(5))
         lengths = self.tendon_lengths()
         cols = []
         for k, t in enumerate(self.tendons):
             w = 2.0 * math.pi * t.turns / lengths[:, k]
             cols.append(np.broadcast_arrays(t.offset[:, 0], t.offset[:, 1], t.helix_radius, w, t.phase))
         b = max(np.broadcast(*c).shape[0] for c in cols)
-        x0, y0, a, w, ph = (np.stack([np.broadcast_to(c[i], (b,)) for c in cols], axis=1) for i in range(5))
+        return tuple(np.stack([np.broadcast_to(c[i], (b,)) for c in cols], axis=1) for i in range(5))
+
+    def tendon_routing(self, s) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Body-frame routing of every tendon at arc length s [m] (a number, or (B,) or (B, K)):
+        r(s) and its first two arc-length derivatives, each (1 or B, K, 3)."""
+        if self.n_tendons == 0:
+            z = np.zeros((1, 0, 3))
+            return z, z, z
+        x0, y0, a, w, ph = self.routing_parameters()
         s = np.asarray(s, dtype=np.float64)
         s = s[:, None] if s.ndim == 1 else s
         ang = w * s + ph

@@ -31,8 +31,11 @@ def _fused(driver: str | None, device) -> bool:
     return (driver or ("probes" if device.is_cuda else "fused")) == "fused"
 
 
-def _load(kernel, device) -> None:
-    kernel.module.load(device, 1 if device.is_cpu else 256)
+def _load_solver_kernels(k, fused: bool, dynamic: bool, device) -> None:
+    """Compile (or load) the kernels a Shooting of variant k runs: its Newton driver, and the
+    evaluation of a known state in dynamics."""
+    for kernel in (k.solve if fused else k.probe,) + ((k.evaluate,) if dynamic else ()):
+        kernel.module.load(device, 1 if device.is_cpu else 256)
 
 
 def load_kernels(robot: Robot, options, device=None, *, dynamic: bool = False) -> float:
@@ -47,10 +50,9 @@ def load_kernels(robot: Robot, options, device=None, *, dynamic: bool = False) -
     wdtype = PRECISIONS[options.precision][0]
     for dyn in (False, True) if dynamic else (False,):
         k = make_shooting_kernels(wdtype, options.integrator, options.model, dyn, options.rod, features)
-        _load(k.solve if _fused(options.driver, dev) else k.probe, dev)
-        if dyn:
-            _load(k.evaluate, dev)
-            _load(make_history_kernels(wdtype).end_step, dev)
+        _load_solver_kernels(k, _fused(options.driver, dev), dyn, dev)
+    if dynamic:
+        make_history_kernels(wdtype).end_step.module.load(dev, 1 if dev.is_cpu else 256)
     return time.perf_counter() - t0
 
 
@@ -83,8 +85,7 @@ class Shooting:
         # statics: the first Jacobian of a Broyden solve from probes over double steps, where that
         # stays accurate (RK4, error ~h^4, on a fine enough grid; Broyden corrects the rest)
         self.coarse_jacobian = int(not dynamic and integrator == "rk4" and n1 - 1 >= COARSE_MIN_NODES)
-        for kernel in (k.solve if self.fused else k.probe,) + ((k.evaluate,) if dynamic else ()):
-            _load(kernel, device)  # compile (or load) before threads race to it
+        _load_solver_kernels(k, self.fused, dynamic, device)  # before threads race to it
 
     def set_tensions(self, tau: np.ndarray) -> None:
         set_tensions(self.dev, self.control, tau)
