@@ -10,6 +10,7 @@ reused across solves and time steps.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -111,7 +112,7 @@ class Tables:
 
     rod, dyn, tendon, pforce: see kernels/layout.py; grid (1|B, N+1) [m]; term_node (1|B, K)
     and pnode (1|B, P): node indices; features: the physics the robot contains; straight: its
-    Newton start. Derived from the rod table: ``scale_rows`` and ``stiffness``.
+    Newton start. Derived from the rod table: ``scales`` and ``stiffness``.
     """
 
     rod: np.ndarray
@@ -139,11 +140,15 @@ class Tables:
         t = getattr(self, name)
         return t[lo:hi] if t.shape[0] > 1 else t
 
-    def scale_rows(self, B: int) -> np.ndarray:
-        """(B, 6) the kernels' force and moment scales [EI/L^2 x 3, EI/L x 3]: the scaled unknowns
-        are [n(0), m(0)] / scales."""
+    @functools.cached_property
+    def scales(self) -> np.ndarray:
+        """(1|B, 6) the kernels' force and moment scales [EI/L^2 x 3, EI/L x 3]: the scaled unknowns
+        are [n(0), m(0)] / scales (taken once from the rod table: every solve uses them)."""
         f, m = self.rod[:, layout.FORCE_SCALE], self.rod[:, layout.MOMENT_SCALE]
-        return np.broadcast_to(np.stack([f, f, f, m, m, m], axis=1), (B, 6))
+        return np.stack([f, f, f, m, m, m], axis=1)
+
+    def scale_rows(self, B: int) -> np.ndarray:
+        return np.broadcast_to(self.scales, (B, 6))
 
     @property
     def stiffness(self) -> np.ndarray:
