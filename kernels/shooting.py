@@ -16,13 +16,14 @@ from types import SimpleNamespace
 
 import warp as wp
 
-from .layout import CONVERGED, FORCE_SCALE, LENGTH, MAX_ITER, MOMENT_SCALE, TIP_F, TIP_M
+from .layout import (CONVERGED, FORCE_SCALE, LENGTH, MAX_ITER, MOMENT_SCALE, TIP_F, TIP_M, TO_BASE, TO_END, TO_FREE,
+                     TO_PATH, TO_TURN)
 from .newton import make_newton
 from .rod import ALL, Features, make_rod_funcs
 
 INTEGRATORS = ("euler", "midpoint", "rk4")
 STAGES = {"euler": 1, "midpoint": 2, "rk4": 4}
-N_BASE = 6  # n(0), m(0)
+N_BASE = 6  # n(0), m(0); + one tension per displacement-controlled tendon
 
 
 @functools.cache
@@ -43,13 +44,19 @@ def make_shooting_kernels(dtype, integrator: str, model: str, dynamic: bool = Fa
     rf = make_rod_funcs(dtype, model, dynamic, rod, features)
     vec3, mat33 = rf.vec3, rf.mat33
     Model, Control, Step = rf.Model, rf.Control, rf.Step
-    nt = make_newton(dtype, N_BASE, dynamic)
-    Newton, vec6 = nt.Newton, nt.vec
+    nu = N_BASE + features.displaced
+    nt = make_newton(dtype, nu, dynamic)
+    Newton, vecu = nt.Newton, nt.vec
+    kvec, evec = rf.kvec, rf.evec
+    K = rf.K
+    tstate = rf.tstate
     n_probes = nt.n_probes
     width = nt.width
     # One Warp module per variant and driver: a solve compiles only what its device runs.
-    key = f"{wp.types.type_repr(dtype)}_{integrator}_{model}_{'dyn' if dynamic else 'static'}_{rod}_" + "".join(
-        str(int(f)) for f in features)
+    key = (f"{wp.types.type_repr(dtype)}_{integrator}_{model}_{'dyn' if dynamic else 'static'}_{rod}_"
+           + "".join(str(int(f)) for f in features[:4]) + ("" if features.kinks else "_nokink")
+           + (f"_k{features.tendons}" if features.tendons else "") + ("_mu" if features.friction else "")
+           + (f"_d{features.displaced}" if features.displaced else ""))
     modules = {grp: f"tdcr_warp_{grp}_{key}" for grp in ("fused", "probes", "evaluate")}
     rk4 = integrator == "rk4"
     midpoint = integrator == "midpoint"
@@ -68,6 +75,9 @@ def make_shooting_kernels(dtype, integrator: str, model: str, dynamic: bool = Fa
         n: wp.array2d(dtype=vec3)
         m: wp.array2d(dtype=vec3)
         orth: wp.array(dtype=dtype)  # max |R^T R - I| over the nodes
+        if tstate:
+            tend: wp.array3d(dtype=dtype)  # (B, K, TO_WIDTH) per tendon (kernels/layout.py)
+            taun: wp.array3d(dtype=dtype)  # (B, N+1, K) tension just distal of every node [N]
         if dynamic:
             q: wp.array2d(dtype=vec3)
             w: wp.array2d(dtype=vec3)
@@ -101,7 +111,26 @@ def make_shooting_kernels(dtype, integrator: str, model: str, dynamic: bool = Fa
         return dtype(1.0)
 
     @wp.func
-    def shoot(x: vec6, md: Model, ct: Control, sp: Step, b: int, store: int, coarse: int, out: Nodes):
+    def store_tensions(md: Model, ct: Control, sp: Step, b: int, out: Nodes, t0: kvec, E: evec, node: int, slot: int):
+        """The tensions just distal of ``node`` (store pass, tendon states only; ``slot``: an
+        evaluation there, whose remembered tension a stick-slip solve reads)."""
+        if wp.static(tstate):
+            tau, g, h = rf.tensions(md, ct, b, t0, E, slot, zero, zero)
+            for k in range(md.n_tendons):  # a runtime bound (= K): not unrolled
+                out.taun[b, node, k] = tau[k]
+
+    @wp.func
+    def store_end_tensions(md: Model, ct: Control, sp: Step, b: int, out: Nodes, t0: kvec, E: evec, node: int,
+                           slot: int):
+        """The tension of each tendon ending at ``node``, just before its end."""
+        if wp.static(tstate):
+            tau, g, h = rf.tensions(md, ct, b, t0, E, slot, zero, zero)
+            for k in range(md.n_tendons):  # a runtime bound (= K): not unrolled
+                if rf.term_node(md, b, k) == node:
+                    out.tend[b, k, TO_END] = tau[k]
+
+    @wp.func
+    def shoot(x: vecu, md: Model, ct: Control, sp: Step, b: int, store: int, coarse: int, out: Nodes):
         """Integrate base to tip from the scaled unknowns x; return the scaled residual.
         coarse = 1 (statics, never with store): steps over two intervals wherever no load sits
         on the node between them, about half the work (the probes of a first Jacobian)."""
@@ -113,13 +142,17 @@ def make_shooting_kernels(dtype, integrator: str, model: str, dynamic: bool = Fa
         m = vec3(x[3], x[4], x[5]) * ms
         q = vec3()
         w = vec3()
+        t0 = rf.base_tensions(md, ct, b, x)
+        E = evec()
         ig = rf.row(b, md.grid)
         n_int = md.grid.shape[1] - 1
         jslot = n_int * stages  # first of the two slots per node used by the jumps
         orth = zero
         if store != 0:
             store_node(out, b, 0, p, R, n, m, q, w)
-        n, m = rf.node_jumps(md, ct, sp, b, zero, R, n, m, q, w, 0, jslot, jslot + 1, store)
+        n, m, E = rf.node_jumps(md, ct, sp, b, zero, R, n, m, q, w, t0, E, 0, jslot, jslot + 1, store)
+        if store != 0:
+            store_tensions(md, ct, sp, b, out, t0, E, 0, 0)
         k = int(0)
         while k < n_int:
             k1 = k + 1
@@ -137,6 +170,8 @@ def make_shooting_kernels(dtype, integrator: str, model: str, dynamic: bool = Fa
             Am = vec3()
             Aq = vec3()
             Aw = vec3()
+            AE = evec()
+            kE = evec()
             kp = vec3()
             kR = mat33()
             kn = vec3()
@@ -145,8 +180,9 @@ def make_shooting_kernels(dtype, integrator: str, model: str, dynamic: bool = Fa
             kw = vec3()
             for st in range(stages + 0 * n_int):
                 ch = stage_c(st) * h
-                kp, kR, kn, km, kq, kw = rf.rhs(md, ct, sp, b, s + ch, p + ch * kp, R + ch * kR, n + ch * kn,
-                                                m + ch * km, q + ch * kq, w + ch * kw, k, sl + st, store)
+                kp, kR, kn, km, kq, kw, kE = rf.rhs(md, ct, sp, b, s + ch, p + ch * kp, R + ch * kR, n + ch * kn,
+                                                    m + ch * km, q + ch * kq, w + ch * kw, t0, E + ch * kE, k,
+                                                    sl + st, store)
                 wt = stage_w(st)
                 Ap += wt * kp
                 AR += wt * kR
@@ -155,6 +191,8 @@ def make_shooting_kernels(dtype, integrator: str, model: str, dynamic: bool = Fa
                 if wp.static(dynamic):
                     Aq += wt * kq
                     Aw += wt * kw
+                if wp.static(tstate):
+                    AE += wt * kE
             p = p + h * Ap
             R = R + h * AR
             n = n + h * An
@@ -162,21 +200,37 @@ def make_shooting_kernels(dtype, integrator: str, model: str, dynamic: bool = Fa
             if wp.static(dynamic):
                 q = q + h * Aq
                 w = w + h * Aw
+            if wp.static(tstate):
+                E = E + h * AE
             R = rf.orthonormalize(R)
             if store != 0:
                 store_node(out, b, k1, p, R, n, m, q, w)
-                E = wp.transpose(R) * R - wp.identity(3, dtype)
+                dev = wp.transpose(R) * R - wp.identity(3, dtype)
                 for i in range(3):
                     for j in range(3):
-                        orth = wp.max(orth, wp.abs(E[i, j]))
+                        orth = wp.max(orth, wp.abs(dev[i, j]))
             js = jslot + 2 * k1
-            n, m = rf.node_jumps(md, ct, sp, b, md.grid[ig, k1], R, n, m, q, w, k1, js, js + 1, store)
+            if store != 0:
+                store_end_tensions(md, ct, sp, b, out, t0, E, k1, js)
+            n, m, E = rf.node_jumps(md, ct, sp, b, md.grid[ig, k1], R, n, m, q, w, t0, E, k1, js, js + 1, store)
+            if store != 0:  # the first stage of the next interval is just distal of node k1
+                store_tensions(md, ct, sp, b, out, t0, E, k1, wp.where(k1 < n_int, k1 * stages, js + 1))
             k = k1
         if store != 0:
             out.orth[b] = orth
+            if wp.static(tstate):
+                for kk in range(md.n_tendons):
+                    out.tend[b, kk, TO_BASE] = t0[kk]
+                    out.tend[b, kk, TO_PATH] = E[K + kk]
+                    out.tend[b, kk, TO_FREE] = E[2 * K + kk]
+                    out.tend[b, kk, TO_TURN] = E[kk]
         rn = (n - rf.rvec(md, b, TIP_F)) / fs
         rm = (m - rf.rvec(md, b, TIP_M)) / ms
-        return vec6(rn[0], rn[1], rn[2], rm[0], rm[1], rm[2])
+        res = vecu()
+        for i in range(3):
+            res[i] = rn[i]
+            res[3 + i] = rm[i]
+        return rf.length_residuals(md, ct, b, x, E, res)
 
     @wp.func
     def residual_scale(md: Model, b: int):
@@ -208,7 +262,7 @@ def make_shooting_kernels(dtype, integrator: str, model: str, dynamic: bool = Fa
         return (nw.status[b] & CONVERGED) == 0 and (nw.flags[b] & 1) != 0
 
     @wp.kernel(module=modules["fused"], enable_backward=False)
-    def solve_kernel(md: Model, ct: Control, sp: Step, nw: Newton, out: Nodes, x_from: wp.array(dtype=vec6),
+    def solve_kernel(md: Model, ct: Control, sp: Step, nw: Newton, out: Nodes, x_from: wp.array(dtype=vecu),
                      fresh_jacobian: int, tol: dtype, max_iter: int, max_step: dtype, broyden: int,
                      coarse_jacobian: int, mask: wp.array(dtype=int)):
         """The whole Newton loop of rod b (``mask[b]`` = 1) in one thread, from x_from[b]. One
@@ -270,18 +324,19 @@ def make_shooting_kernels(dtype, integrator: str, model: str, dynamic: bool = Fa
             shoot(nw.x[b], md, ct, sp, b, 1, 0, out)
 
     @wp.kernel(module=modules["probes"], enable_backward=False)
-    def begin_kernel(nw: Newton, x_from: wp.array(dtype=vec6), fresh_jacobian: int, mask: wp.array(dtype=int)):
+    def begin_kernel(nw: Newton, x_from: wp.array(dtype=vecu), fresh_jacobian: int, mask: wp.array(dtype=int)):
         b = wp.tid()
         if mask[b] != 0:
             nt.begin(nw, b, x_from, fresh_jacobian)
 
     @wp.kernel(module=modules["evaluate"], enable_backward=False)
-    def evaluate_kernel(md: Model, ct: Control, sp: Step, x: wp.array(dtype=vec6), out: Nodes):
+    def evaluate_kernel(md: Model, ct: Control, sp: Step, x: wp.array(dtype=vecu), out: Nodes):
         """One integration per rod from x, storing the shape (and the dynamics slots)."""
         b = wp.tid()
         shoot(x[b], md, ct, sp, b, 1, 0, out)
 
     return SimpleNamespace(solve=solve_kernel, probe=probe_kernel, update=update_kernel, finish=finish_kernel,
                            begin=begin_kernel, evaluate=evaluate_kernel, Model=Model, Control=Control, Step=Step,
-                           Nodes=Nodes, Newton=Newton, vec3=vec3, mat33=mat33, vec6=vec6, mat66=nt.mat,
-                           stages=stages, n_probes=n_probes, width=nt.width, nu=N_BASE, modules=modules)
+                           Nodes=Nodes, Newton=Newton, vec3=vec3, mat33=mat33, vecu=vecu, matu=nt.mat,
+                           stages=stages, n_probes=n_probes, width=nt.width, nu=nu, K=K, tstate=tstate,
+                           friction=features.friction, modules=modules)

@@ -27,7 +27,8 @@ from .kernels.shooting import INTEGRATORS
 __all__ = ["Variant", "compile_variant", "covering_variants", "all_variants", "main"]
 
 PRECISIONS = ("float64", "float32")
-NONE = Features(gravity=False, point_loads=False, helix=False, drag=False)
+NONE = Features(gravity=False, point_loads=False, helix=False, drag=False, kinks=False)
+TENDON_STATES = ((False, 0, 0), (True, 4, 2))  # (friction, tendons, displaced): none, or all of them
 
 
 class Variant(NamedTuple):
@@ -39,25 +40,32 @@ class Variant(NamedTuple):
     features: Features
 
     def __str__(self) -> str:
-        feats = "+".join(n for n, on in self.features._asdict().items() if on) or "no features"
+        feats = "+".join(n if on is True else f"{n}={on}" for n, on in self.features._asdict().items() if on) or \
+            "no features"
         return (f"{self.precision} {self.integrator} {self.model} {self.rod} "
                 f"{'dynamics' if self.dynamic else 'statics'} [{feats}]")
 
 
 def all_variants() -> list[Variant]:
-    """Every variant the package can build."""
-    return [Variant(prec, integ, model, rod, dyn, Features(*flags))
+    """Every variant the package can build (tendon states: statics only, each tendon count
+    compiles like K = 4 with 2 displaced tendons)."""
+    return [Variant(prec, integ, model, rod, dyn, Features(*flags, *states))
             for prec, integ, model, rod, dyn in itertools.product(PRECISIONS, INTEGRATORS, MODELS, RODS, (False, True))
-            for flags in itertools.product((True, False), repeat=4)]
+            for flags in itertools.product((True, False), repeat=5)
+            for states in (TENDON_STATES if not dyn else TENDON_STATES[:1])]
 
 
 def covering_variants() -> list[Variant]:
-    """Every precision, integrator, tendon model, rod model, statics and dynamics, and both
-    extreme feature sets, each at least once (4 variants)."""
+    """Every precision, integrator, tendon model, rod model, statics and dynamics, both extreme
+    feature sets, and tendon states (friction, displacement unknowns) with either tendon model,
+    each at least once (6 variants)."""
+    states = dict(friction=True, tendons=4, displaced=2)
     return [Variant("float64", "rk4", "coupled", "cosserat", False, ALL),
             Variant("float32", "midpoint", "point", "kirchhoff", True, ALL),
             Variant("float64", "euler", "coupled", "kirchhoff", True, NONE),
-            Variant("float32", "rk4", "point", "cosserat", False, NONE)]
+            Variant("float32", "rk4", "point", "cosserat", False, NONE),
+            Variant("float64", "rk4", "coupled", "cosserat", False, ALL._replace(**states)),
+            Variant("float32", "midpoint", "point", "kirchhoff", False, NONE._replace(**states))]
 
 
 def _modules(v: Variant):

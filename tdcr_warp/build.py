@@ -90,20 +90,53 @@ def pack_dynamics(robot: Robot) -> np.ndarray:
     return _columns([rho_a, rho_j, robot.damping_shear, robot.damping_bending, robot.drag], layout.DYN_WIDTH)
 
 
+def slack_slopes(robot: Robot) -> np.ndarray:
+    """(1|B, K) the slope of a displacement-controlled tendon's taut residual at zero tension on
+    a straight rod, per scaled unknown: (EI / L^2) (r^2 / EI + 1 / EA + c) L / L = r^2 / L^2 +
+    EI / (EA L^2) + c EI / L^2 (bending shortens the path by r theta, compression by L tau / EA,
+    the wire stretches by c L tau). The slack branch continues with it (kernels/rod.py)."""
+    if not robot.tendons:
+        return np.zeros((1, 0))
+    r0 = np.linalg.norm(robot.tendon_routing(0.0)[0], axis=-1)
+    sec = robot.section()
+    L = robot.length[:, None]
+    ei, ea = sec["kbt"][:, :1], sec["kse"][:, 2:3]
+    return r0**2 / L**2 + ei / (ea * L**2) + robot.tendon_columns("compliance") * ei / L**2
+
+
 def pack_tendons(robot: Robot) -> np.ndarray:
-    """Tendon routing rows, shape (1 or B, K, layout.TENDON_WIDTH) (Robot.routing_parameters)."""
-    cols = dict(zip((layout.T_X0, layout.T_Y0, layout.T_A, layout.T_W, layout.T_PHASE), robot.routing_parameters()))
-    return np.stack([cols[c] for c in range(layout.TENDON_WIDTH)], axis=-1)
+    """Tendon rows, shape (1 or B, K, layout.TENDON_WIDTH): routing (Robot.routing_parameters),
+    friction, compliance and the slack slope."""
+    names = (layout.T_X0, layout.T_Y0, layout.T_A, layout.T_W, layout.T_PHASE, layout.T_DX, layout.T_DY)
+    cols = dict(zip(names, robot.routing_parameters()))
+    cols[layout.T_MU] = robot.tendon_columns("friction")
+    cols[layout.T_COMPLIANCE] = robot.tendon_columns("compliance")
+    cols[layout.T_SLACK_SLOPE] = slack_slopes(robot)
+    b = max(c.shape[0] for c in cols.values())
+    K = robot.n_tendons
+    return np.stack([np.broadcast_to(cols[c], (b, K)) for c in range(layout.TENDON_WIDTH)], axis=-1)
 
 
-def scene_features(robot: Robot, tendon: np.ndarray, specialize: bool) -> Features:
-    """The physics this batch contains (all of it when ``specialize`` is off)."""
+MODES = ("solve", "reference")
+
+
+def scene_features(robot: Robot, tendon: np.ndarray, specialize: bool, kink_loads: bool = True,
+                   mode: str = "solve", lengths: bool = False) -> Features:
+    """The physics this batch contains (all of the optional terms when ``specialize`` is off).
+    Tendon states (path lengths, friction) are structure, not options: friction when a tendon
+    has mu > 0, one unknown per displacement-controlled tendon. ``mode`` "reference": every
+    tendon in tension control without friction, integrating the tendon lengths (the reference
+    state of displacement control); ``lengths``: integrate them anyway."""
+    friction = mode == "solve" and bool(np.any(tendon[..., layout.T_MU] > 0))
+    displaced = len(robot.displaced) if mode == "solve" else 0
+    states = robot.n_tendons if (friction or displaced or lengths or mode == "reference") else 0
+    tendons = dict(kinks=kink_loads, friction=friction, tendons=states, displaced=displaced)
     if not specialize:
-        return ALL
+        return ALL._replace(**tendons)
     return Features(gravity=bool(np.any(robot.gravity != 0) and np.any(robot.density > 0)),
                     point_loads=len(robot.point_forces) > 0,
-                    helix=bool(np.any(tendon[..., layout.T_A] != 0)),
-                    drag=bool(np.any(robot.drag != 0)))
+                    helix=bool(np.any(tendon[..., [layout.T_A, layout.T_DX, layout.T_DY]] != 0)),
+                    drag=bool(np.any(robot.drag != 0)), **tendons)
 
 
 @dataclass(frozen=True)
@@ -111,8 +144,9 @@ class Tables:
     """The packed host tables of one robot at one node count (leading dimension 1 or B).
 
     rod, dyn, tendon, pforce: see kernels/layout.py; grid (1|B, N+1) [m]; term_node (1|B, K)
-    and pnode (1|B, P): node indices; features: the physics the robot contains; straight: its
-    Newton start. Derived from the rod table: ``scales`` and ``stiffness``.
+    and pnode (1|B, P): node indices; tmode (1, K): the shooting unknown 6 + j of each
+    displacement-controlled tendon (-1: tension control); features: the physics the robot
+    contains; straight: its Newton start. Derived from the rod table: ``scales`` and ``stiffness``.
     """
 
     rod: np.ndarray
@@ -122,18 +156,28 @@ class Tables:
     term_node: np.ndarray
     pforce: np.ndarray
     pnode: np.ndarray
+    tmode: np.ndarray
     features: Features
     straight: StraightRod
 
     @classmethod
-    def of(cls, robot: Robot, nodes: int, specialize: bool = True) -> "Tables":
+    def of(cls, robot: Robot, nodes: int, specialize: bool = True, kink_loads: bool = True,
+           mode: str = "solve", lengths: bool = False) -> "Tables":
         tendon_len = robot.tendon_lengths() if robot.tendons else np.zeros((1, 0))
         point_s, point_f = robot.pack_point_forces()
         grid, term_node, point_node = make_grid(robot.length, tendon_len, point_s, nodes)
         tendon = pack_tendons(robot)
+        features = scene_features(robot, tendon, specialize, kink_loads, mode, lengths)
+        tmode = np.full((1, robot.n_tendons), -1, dtype=np.int32)
+        if features.displaced:
+            tmode[0, list(robot.displaced)] = np.arange(features.displaced)
         return cls(rod=pack_rod(robot), dyn=pack_dynamics(robot), tendon=tendon, grid=grid, term_node=term_node,
-                   pforce=point_f, pnode=point_node, features=scene_features(robot, tendon, specialize),
-                   straight=StraightRod.of(robot))
+                   pforce=point_f, pnode=point_node, tmode=tmode, features=features, straight=StraightRod.of(robot))
+
+    @property
+    def nu(self) -> int:
+        """Shooting unknowns per rod: n(0), m(0) and a tension per displacement-controlled tendon."""
+        return 6 + self.features.displaced
 
     def rows(self, name: str, lo: int, hi: int) -> np.ndarray:
         """Rows lo:hi of table ``name``; a shared table (leading 1) stays as it is."""
@@ -142,13 +186,14 @@ class Tables:
 
     @functools.cached_property
     def scales(self) -> np.ndarray:
-        """(1|B, 6) the kernels' force and moment scales [EI/L^2 x 3, EI/L x 3]: the scaled unknowns
-        are [n(0), m(0)] / scales (taken once from the rod table: every solve uses them)."""
+        """(1|B, nu) the kernels' force and moment scales [EI/L^2 x 3, EI/L x 3, EI/L^2 per
+        displaced tendon]: the scaled unknowns are [n(0), m(0), tensions] / scales (taken once
+        from the rod table: every solve uses them)."""
         f, m = self.rod[:, layout.FORCE_SCALE], self.rod[:, layout.MOMENT_SCALE]
-        return np.stack([f, f, f, m, m, m], axis=1)
+        return np.stack([f, f, f, m, m, m] + [f] * self.features.displaced, axis=1)
 
     def scale_rows(self, B: int) -> np.ndarray:
-        return np.broadcast_to(self.scales, (B, 6))
+        return np.broadcast_to(self.scales, (B, self.nu))
 
     @property
     def stiffness(self) -> np.ndarray:
@@ -167,13 +212,15 @@ class StraightRod:
     """What the Newton start of a robot needs, computed once: the base wrench of the straight
     rod under its external loads (gravity, tip wrench: ``external``, point forces: ``points``,
     (1|B, 6)), and per tendon the tangent at its end (dr + e3, (1|B, K, 3)), its length
-    (1|B, K, 1) and the lever arm s_end e3 + r (1|B, K, 3)."""
+    (1|B, K, 1) and the lever arm s_end e3 + r (1|B, K, 3); ``path``: each tendon's path length
+    on the straight rod (1|B, K) [m] (the start of a displacement-controlled tendon)."""
 
     external: np.ndarray
     points: np.ndarray | None
     tangent: np.ndarray
     tangent_norm: np.ndarray
     arm: np.ndarray
+    path: np.ndarray
 
     @classmethod
     def of(cls, robot: Robot) -> "StraightRod":
@@ -185,19 +232,25 @@ class StraightRod:
         m0 = robot.tip_moment + _cross(L[:, None] * e3, robot.tip_force) + _cross(0.5 * (L**2)[:, None] * e3, fe)
         K = robot.n_tendons
         t = arm = norm = np.zeros((1, K, 3))
+        path = np.zeros((1, K))
         if K:
             tl = robot.tendon_lengths()
             r, dr, _ = robot.tendon_routing(tl)
             t = dr + e3
             norm = np.linalg.norm(t, axis=-1, keepdims=True)
             arm = tl[..., None] * e3 + r
+            # |r'(s) + e3| by Simpson's rule over [0, l] (exact where |r'| is constant: straight, helical, linear)
+            frac = np.linspace(0.0, 1.0, 65)
+            rates = np.stack([np.linalg.norm(robot.tendon_routing(tl * f)[1] + e3, axis=-1) for f in frac])
+            wts = np.r_[1.0, np.tile([4.0, 2.0], 31), 4.0, 1.0] / (3.0 * 64)
+            path = tl * np.tensordot(wts, rates, axes=1)
         points = None
         if robot.point_forces:
             ps, pf = robot.pack_point_forces()
             points = np.concatenate(np.broadcast_arrays(pf.sum(axis=1), _cross(ps[..., None] * e3, pf).sum(axis=1)),
                                     axis=1)
         return cls(external=np.concatenate(np.broadcast_arrays(n0, m0), axis=1), points=points, tangent=t,
-                   tangent_norm=norm, arm=arm)
+                   tangent_norm=norm, arm=arm, path=path)
 
     def guess(self, tensions: np.ndarray) -> np.ndarray:
         """n(0), m(0) (B, 6) of the straight rod under tensions (B, K): the Newton start."""
@@ -248,15 +301,27 @@ def put_model(kern, dev: Device, tables: Tables, lo: int, hi: int):
     md.term_node = dev.array(_pad(tables.rows("term_node", lo, hi), (1,)), np.int32)
     md.pforce = dev.array(_pad(tables.rows("pforce", lo, hi), (1, 3)))
     md.pnode = dev.array(_pad(tables.rows("pnode", lo, hi), (1,)), np.int32)
+    md.tmode = dev.array(_pad(tables.tmode, (1,)), np.int32)
     md.n_tendons = tables.tendon.shape[1]
     md.n_points = tables.pforce.shape[1]
     return md
 
 
-def make_control(kern, dev: Device, tau: np.ndarray):
-    """The kernel ``Control``: tensions (b, K) [N]."""
+def make_control(kern, dev: Device, tau: np.ndarray, n_slots: int):
+    """The kernel ``Control``: tensions (b, K) [N]; with tendon states also the available
+    unstretched lengths of displaced tendons (b, K) [m], slip directions (b, K) (+1) and the
+    stick-slip memory (b, S, K), all zero until set (``set_command``, ``set_memory``)."""
+    b, K = tau.shape
     ct = kern.Control()
     ct.tau = dev.array(_pad(tau, (1,)))
+    shape = (b, K) if kern.tstate else (1, 1)
+    ct.avail = dev.array(np.zeros(shape))
+    ct.slip = dev.array(np.ones(shape))
+    ct.stick = dev.array(np.zeros(shape), np.int32)
+    ct.taut = dev.array(np.ones(shape), np.int32)
+    memory = (b, n_slots, K) if kern.friction else (1, 1, 1)
+    ct.tau_old = dev.array(np.zeros(memory))
+    ct.dtau_old = dev.array(np.zeros(memory))
     return ct
 
 
@@ -265,9 +330,12 @@ def set_tensions(dev: Device, ct, tau: np.ndarray) -> None:
 
 
 def make_step(kern, dev: Device, b: int, n_slots: int, dynamic: bool):
-    """The kernel ``Step``: the BDF-alpha constant and the history of every slot (dynamics)."""
+    """The kernel ``Step``: the BDF-alpha constant and the history of every slot (dynamics),
+    and with friction the tension profile of the trial point at every slot (b, S, 3K)."""
     sp = kern.Step()
     sp.c0 = dev.wdtype(0.0)
+    prof = (b, n_slots, 3 * kern.K) if kern.friction else (1, 1, 1)
+    sp.tprof = wp.zeros(prof, dtype=dev.wdtype, device=dev.device)
     if dynamic:
         sp.hist = wp.zeros((b, n_slots, SLOT_WIDTH), dtype=kern.vec3, device=dev.device)
         sp.ycur = wp.zeros((b, n_slots, SLOT_WIDTH), dtype=kern.vec3, device=dev.device)
@@ -286,6 +354,9 @@ def make_state(kern, dev: Device, b: int, n1: int, dynamic: bool):
         out.q = wp.zeros((b, n1), dtype=kern.vec3, device=d)
         out.w = wp.zeros((b, n1), dtype=kern.vec3, device=d)
     out.orth = wp.zeros(b, dtype=dev.wdtype, device=d)
+    if kern.tstate:
+        out.tend = wp.zeros((b, kern.K, layout.TO_WIDTH), dtype=dev.wdtype, device=d)
+        out.taun = wp.zeros((b, n1, kern.K), dtype=dev.wdtype, device=d)
     return out
 
 
@@ -294,9 +365,9 @@ def make_work(kern, dev: Device, b: int):
     nw = kern.Newton()
     d = dev.device
     for name in ("x", "r", "xt"):
-        setattr(nw, name, wp.zeros(b, dtype=kern.vec6, device=d))
-    nw.J = wp.zeros(b, dtype=kern.mat66, device=d)
-    nw.res = wp.zeros((b, kern.width), dtype=kern.vec6, device=d)
+        setattr(nw, name, wp.zeros(b, dtype=kern.vecu, device=d))
+    nw.J = wp.zeros(b, dtype=kern.matu, device=d)
+    nw.res = wp.zeros((b, kern.width), dtype=kern.vecu, device=d)
     for name in ("active", "need_jac", "flags", "status", "iters", "n_shoot"):
         setattr(nw, name, wp.zeros(b, dtype=int, device=d))
     nw.lam = wp.zeros(b, dtype=dev.wdtype, device=d)

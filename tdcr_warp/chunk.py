@@ -15,6 +15,7 @@ from .scene import scene_from_dict
 __all__ = ["apply_rows", "parse_field", "solve_chunk"]
 
 _TOKEN = re.compile(r"([A-Za-z_]+)(?:\[(\d+)\])?")
+ACTUATION_ROWS = ("tensions", "displacements", "slip")  # per-rod rows of K in [actuation]
 
 
 def parse_field(name: str) -> list:
@@ -39,14 +40,22 @@ def apply_rows(data: dict, rows: dict[str, np.ndarray]) -> dict:
     tensions = out.get("actuation", {}).get("tensions")
     if not (isinstance(tensions, list) and len(tensions) == 1):
         raise InputError("a sweep needs a single-rod scene: [actuation].tensions with one row")
-    out["actuation"]["tensions"] = [copy.deepcopy(tensions[0]) for _ in range(b)]  # fixes the batch size
-    done: set[tuple] = {("actuation", "tensions")}
+    done: set[tuple] = set()
+    for key in ACTUATION_ROWS:  # B rows of K: fixes the batch size
+        rows_k = out["actuation"].get(key)
+        if rows_k is not None:
+            if not (isinstance(rows_k, list) and len(rows_k) == 1):
+                raise InputError(f"a sweep needs a single-rod scene: [actuation].{key} with one row")
+            out["actuation"][key] = [copy.deepcopy(rows_k[0]) for _ in range(b)]
+            done.add(("actuation", key))
     for name, values in rows.items():
         path = parse_field(name)
-        if path[0] == "actuation" and path[1:2] == ["tensions"]:
+        if path[0] == "actuation" and path[1:2] and path[1] in ACTUATION_ROWS:
             if len(path) != 3:
-                raise InputError(f"sweep field {name!r}: use actuation.tensions[k] for tendon k")
-            leaf_path, comp = ("actuation", "tensions"), path[2]
+                raise InputError(f"sweep field {name!r}: use actuation.{path[1]}[k] for tendon k")
+            if ("actuation", path[1]) not in done:
+                raise InputError(f"sweep field {name!r}: set a base value for [actuation].{path[1]} in the scene")
+            leaf_path, comp = ("actuation", path[1]), path[2]
         elif isinstance(path[-1], int):
             leaf_path, comp = tuple(path[:-1]), path[-1]
         else:

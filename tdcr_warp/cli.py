@@ -108,7 +108,8 @@ def cmd_static(args) -> int:
     out = _out_dir(args, Path("out") / Path(args.scene).stem)
     load_s = _load_kernels(scene, args)
     t0 = time.perf_counter()
-    sol = solve_static(scene.robot, scene.tensions, options=scene.options, device=args.device)
+    sol = solve_static(scene.robot, scene.tensions, options=scene.options, device=args.device,
+                       **scene.static_command())
     wall = time.perf_counter() - t0
     B = len(sol.converged)
     reasons = sol.failure_reasons()
@@ -127,7 +128,8 @@ def cmd_static(args) -> int:
         "rods": [{"tip_position": sol.tip_position[b].tolist(), "tip_rotation": sol.tip_rotation[b].tolist(),
                   "converged": bool(sol.converged[b]), "status": reasons[b],
                   "iterations": int(sol.iterations[b]), "residual": float(sol.residual[b]),
-                  "orthogonality_error": float(sol.orthogonality_error[b])} for b in range(B)],
+                  "orthogonality_error": float(sol.orthogonality_error[b]), "tendons": _tendon_rows(sol, b)}
+                 for b in range(B)],
     }
     _write_json(out / "results.json", results)  # last: its presence means the run is complete
     print(f"wrote {out}/results.json, shapes.npz{'' if args.no_figures else ', shapes.png'}")
@@ -138,6 +140,21 @@ def cmd_static(args) -> int:
               file=sys.stderr)
         return 1
     return 0
+
+
+def _tendon_rows(sol, b: int) -> list[dict]:
+    """Per tendon of rod b: tensions at the motor and the end [N]; with tendon states also the
+    path length and unstretched length [m], turning [rad], slack; with friction the slip used."""
+    rows = []
+    for k in range(sol.tendon_tension_base.shape[1]):
+        row = {"tension_base": float(sol.tendon_tension_base[b, k]), "tension_end": float(sol.tendon_tension_end[b, k])}
+        if sol.tendon_path_length is not None:
+            row |= {"path_length": float(sol.tendon_path_length[b, k]),
+                    "free_length": float(sol.tendon_free_length[b, k]), "slack": bool(sol.slack[b, k])}
+        if sol.slip is not None:
+            row |= {"turning": float(sol.tendon_turning[b, k]), "slip": float(sol.slip[b, k])}
+        rows.append(row)
+    return rows
 
 
 def cmd_simulate(args) -> int:

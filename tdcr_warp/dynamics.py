@@ -109,6 +109,9 @@ class Simulator:
         self.dev = wp.get_device(device)
         if self.opts.model == "constant_curvature":
             raise InputError("dynamics needs a rod model: solver model 'coupled' or 'point'")
+        if robot.displaced or any(np.any(t.friction > 0) for t in robot.tendons):
+            raise InputError("dynamics: tendons under displacement control or with friction are not simulated yet "
+                             "(statics only); use tension control and friction = 0")
         static = initial if initial is not None else solve_static(robot, tau, options=self.opts,
                                                                   device=self.dev)
         if static.base_wrench.shape[0] != self.B:
@@ -117,7 +120,7 @@ class Simulator:
             bad = np.flatnonzero(~static.converged)
             raise InputError(f"the static start did not converge for rods {bad[:10].tolist()} "
                              f"({static.failure_reasons()[bad[0]]})")
-        tables = Tables.of(robot, self.opts.nodes, self.opts.specialize)
+        tables = Tables.of(robot, self.opts.nodes, self.opts.specialize, self.opts.kink_loads)
         if tables.grid.shape[1] != static.s.shape[1]:
             raise InputError("initial: its node count differs from the simulation's")
         self.grid = np.broadcast_to(tables.grid, (self.B, tables.grid.shape[1]))

@@ -42,12 +42,13 @@ def follow(sh: Shooting, set_load, steps: np.ndarray, mask: np.ndarray, start, n
 
 def continuation_steps(x0: np.ndarray, minimum: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Which rods need a load continuation and over how many steps, from the scaled
-    straight-rod start x0 (b, 6): beyond ~1.5 rad of linear bending Newton may land on another
-    equilibrium (a looped cantilever under a large tip force); steps grow with the bending
+    straight-rod start x0 (b, nu; its first 6 are n(0), m(0)): beyond ~1.5 rad of linear
+    bending Newton may land on another equilibrium (a looped cantilever under a large tip
+    force); steps grow with the bending
     load and the axial compression in Euler loads (sqrt(P L^2 / EI)). Returns (finite, large,
     steps) per rod."""
     with np.errstate(all="ignore"):  # absurd inputs overflow: those rods are flagged anyway
-        load = np.linalg.norm(x0[:, 3:], axis=1) + np.linalg.norm(x0[:, :2], axis=1)
+        load = np.linalg.norm(x0[:, 3:6], axis=1) + np.linalg.norm(x0[:, :2], axis=1)
         compression = np.sqrt(np.abs(x0[:, 2]))
         finite = np.isfinite(load) & np.isfinite(compression)
         hard = np.where(finite, np.maximum(load, compression), 0.0)
@@ -56,10 +57,12 @@ def continuation_steps(x0: np.ndarray, minimum: int) -> tuple[np.ndarray, np.nda
 
 
 def load_continuation(sh: Shooting, rod0: np.ndarray, pforce0: np.ndarray, tau: np.ndarray, x0: np.ndarray,
-                      mask: np.ndarray, steps: np.ndarray, newton: dict) -> None:
+                      mask: np.ndarray, steps: np.ndarray, newton: dict, lengths=None) -> None:
     """Statics: tensions and external loads (gravity, tip wrench, point forces) of the rods in
     ``mask`` scaled by lam, from the straight-rod start scaled likewise (it is linear in the
-    loads). Afterwards the rods' own tables are back in place, and their iterations and
+    loads). ``lengths`` = (free, avail) under displacement control: the length given to each
+    displaced tendon goes from its straight-rod path ``free`` to ``avail`` (the start is linear
+    in it too). Afterwards the rods' own tables are back in place, and their iterations and
     integrations are the sums over the path."""
     md = sh.model
     own_rod, own_pf = md.rod, md.pforce
@@ -76,13 +79,14 @@ def load_continuation(sh: Shooting, rod0: np.ndarray, pforce0: np.ndarray, tau: 
         sh.dev.put(md.rod, r)
         if has_points:
             sh.dev.put(md.pforce, pforce0 * lam[:, None, None])
-        sh.set_tensions(tau * lam[:, None])
+        sh.set_command(tau * lam[:, None], None if lengths is None else
+                       lengths[0] + lam[:, None] * (lengths[1] - lengths[0]))
 
     try:
         iters, shots = follow(sh, set_load, steps, mask, x0 * (1 / steps)[:, None], newton)
     finally:
         md.rod, md.pforce = own_rod, own_pf
-        sh.set_tensions(tau)
+        sh.set_command(tau, None if lengths is None else lengths[1])
     touched = shots > 0
     it, sh_n = sh.newton.iters.numpy().copy(), sh.newton.n_shoot.numpy().copy()
     it[touched], sh_n[touched] = iters[touched], shots[touched]

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["InputError", "PointForce", "Robot", "Tendon", "check_tensions"]
+__all__ = ["InputError", "PointForce", "Robot", "Tendon", "check_displacements", "check_slip", "check_tensions"]
 
 
 class InputError(ValueError):
@@ -65,15 +65,27 @@ def _batch(fields: dict[str, np.ndarray]) -> int:
     return max(sizes.values(), default=1)
 
 
+CONTROLS = ("tension", "displacement")
+ROUTINGS = ("straight", "helix", "linear")
+
+
 @dataclass(frozen=True)
 class Tendon:
     """One tendon. Routing in the body (disk) frame:
 
-    r(s) = offset + helix_radius [cos(2 pi turns s / length + phase), sin(...)]
+    r(s) = offset + (offset_end - offset) s / length + helix_radius [cos(2 pi turns s / length + phase), sin(...)]
 
     offset: (2,) or (B, 2) [m]; helix_radius, turns, phase [m, -, rad]: float or (B,);
     length: termination arc length [m] (None: the rod length), float or (B,).
-    ``routing`` is "straight" (helix_radius must be 0) or "helix".
+    ``routing`` is "straight" (constant offset), "helix" (a rotating offset) or "linear" (the
+    offset moves in a straight line from ``offset`` at the base to ``offset_end`` at the
+    termination: converging or diverging routes).
+
+    The tendon itself: ``control`` "tension" (commanded in N) or "displacement" (commanded as
+    a motor displacement q in m, pull positive: the motor takes in q of unstretched tendon,
+    relative to the reference state where every tendon holds its ``pretension`` [N]);
+    ``compliance`` 1 / (E_t A_t) of the wire [1/N] (0: inextensible); ``friction`` the
+    coefficient mu of tendon-disk friction (capstan law, 0: frictionless). Float or (B,) each.
     """
 
     offset: object = (0.0, 0.0)
@@ -82,21 +94,36 @@ class Tendon:
     turns: object = 0.0
     phase: object = 0.0
     length: object = None
+    offset_end: object = None
+    control: str = "tension"
+    compliance: object = 0.0
+    pretension: object = 0.0
+    friction: object = 0.0
 
     def __post_init__(self):
-        if self.routing not in ("straight", "helix"):
-            raise InputError(f"tendon routing must be 'straight' or 'helix', got {self.routing!r}")
-        for name in ("offset", "helix_radius", "turns", "phase"):
+        if self.routing not in ROUTINGS:
+            raise InputError(f"tendon routing must be one of {ROUTINGS}, got {self.routing!r}")
+        if self.control not in CONTROLS:
+            raise InputError(f"tendon control must be one of {CONTROLS}, got {self.control!r}")
+        for name in ("offset", "helix_radius", "turns", "phase", "compliance", "pretension", "friction"):
             tail = (2,) if name == "offset" else ()
             object.__setattr__(self, name, _as_field(f"tendon {name}", getattr(self, name), tail))
+        for name, what in (("compliance", "compliance [1/N]"), ("pretension", "pretension [N]"),
+                           ("friction", "friction coefficient mu")):
+            _check(f"tendon {name}", getattr(self, name), getattr(self, name) >= 0, f">= 0 (a {what})")
         if self.length is not None:
             object.__setattr__(self, "length", _as_field("tendon length", self.length, ()))
             _check("tendon length", self.length, self.length > 0, "positive")
-        if self.routing == "straight":
-            _check("tendon helix_radius (straight routing)", self.helix_radius,
-                   self.helix_radius == 0, "0")
-        else:
+        if self.routing == "linear":
+            if self.offset_end is None:
+                raise InputError("tendon offset_end is required with routing = 'linear'")
+            object.__setattr__(self, "offset_end", _as_field("tendon offset_end", self.offset_end, (2,)))
+        elif self.offset_end is not None:
+            raise InputError(f"tendon offset_end is only used with routing = 'linear', got routing = {self.routing!r}")
+        if self.routing == "helix":
             _check("tendon helix_radius", self.helix_radius, self.helix_radius >= 0, ">= 0")
+        else:
+            _check(f"tendon helix_radius ({self.routing} routing)", self.helix_radius, self.helix_radius == 0, "0")
 
 
 @dataclass(frozen=True)
@@ -162,7 +189,8 @@ class Robot:
             object.__setattr__(self, name, items)
         fields = {n: getattr(self, n) for n in scalars + vectors}
         for i, t in enumerate(self.tendons):
-            for n in ("offset", "helix_radius", "turns", "phase", "length"):
+            for n in ("offset", "helix_radius", "turns", "phase", "length", "offset_end", "compliance",
+                      "pretension", "friction"):
                 if getattr(t, n) is not None:
                     fields[f"tendons[{i}].{n}"] = getattr(t, n)
         for j, pf in enumerate(self.point_forces):
@@ -216,17 +244,30 @@ class Robot:
         return sec
 
     def routing_parameters(self) -> tuple[np.ndarray, ...]:
-        """Per tendon the routing r(s) = [x0 + a cos(w s + phase), y0 + a sin(w s + phase), 0]:
-        x0, y0, a [m], w [rad/m], phase [rad], each (1 or B, K)."""
+        """Per tendon the routing r(s) = [x0 + dx s + a cos(w s + phase), y0 + dy s + a sin(w s + phase), 0]:
+        x0, y0, a [m], w [rad/m], phase [rad], dx, dy [-], each (1 or B, K)."""
         if not self.tendons:
-            return tuple(np.zeros((1, 0)) for _ in range(5))
+            return tuple(np.zeros((1, 0)) for _ in range(7))
         lengths = self.tendon_lengths()
         cols = []
         for k, t in enumerate(self.tendons):
             w = 2.0 * math.pi * t.turns / lengths[:, k]
-            cols.append(np.broadcast_arrays(t.offset[:, 0], t.offset[:, 1], t.helix_radius, w, t.phase))
+            slope = np.zeros((1, 2)) if t.offset_end is None else (t.offset_end - t.offset) / lengths[:, k, None]
+            cols.append(np.broadcast_arrays(t.offset[:, 0], t.offset[:, 1], t.helix_radius, w, t.phase,
+                                            slope[:, 0], slope[:, 1]))
         b = max(np.broadcast(*c).shape[0] for c in cols)
-        return tuple(np.stack([np.broadcast_to(c[i], (b,)) for c in cols], axis=1) for i in range(5))
+        return tuple(np.stack([np.broadcast_to(c[i], (b,)) for c in cols], axis=1) for i in range(7))
+
+    def tendon_columns(self, name: str) -> np.ndarray:
+        """A scalar tendon field (e.g. "friction", "compliance", "pretension") as (1 or B, K)."""
+        if not self.tendons:
+            return np.zeros((1, 0))
+        return _stack_cols([getattr(t, name) for t in self.tendons])
+
+    @property
+    def displaced(self) -> tuple[int, ...]:
+        """The tendons under displacement control, in order (each adds one shooting unknown)."""
+        return tuple(k for k, t in enumerate(self.tendons) if t.control == "displacement")
 
     def tendon_routing(self, s) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Body-frame routing of every tendon at arc length s [m] (a number, or (B,) or (B, K)):
@@ -234,13 +275,13 @@ class Robot:
         if self.n_tendons == 0:
             z = np.zeros((1, 0, 3))
             return z, z, z
-        x0, y0, a, w, ph = self.routing_parameters()
+        x0, y0, a, w, ph, dx, dy = self.routing_parameters()
         s = np.asarray(s, dtype=np.float64)
         s = s[:, None] if s.ndim == 1 else s
         ang = w * s + ph
         c, sn, z = np.cos(ang), np.sin(ang), np.zeros_like(ang)
-        r = np.stack([x0 + a * c, y0 + a * sn, z], axis=-1)
-        dr = np.stack([-a * w * sn, a * w * c, z], axis=-1)
+        r = np.stack([x0 + dx * s + a * c, y0 + dy * s + a * sn, z], axis=-1)
+        dr = np.stack([dx - a * w * sn, dy + a * w * c, z], axis=-1)
         ddr = np.stack([-a * w * w * c, -a * w * w * sn, z], axis=-1)
         return r, dr, ddr
 
@@ -280,3 +321,47 @@ def check_tensions(robot: Robot, tensions, name: str = "tensions") -> np.ndarray
         raise InputError(f"{name}[{b}][{k}] must be a finite number >= 0 (tendons only pull), "
                          f"got {float(tau[b, k])!r}")
     return tau
+
+
+def _rows(robot: Robot, value, name: str, B: int) -> np.ndarray:
+    """A (B, K) float64 array of finite numbers from a (K,) or (B, K) input."""
+    try:
+        a = np.array(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InputError(f"{name}: expected a B x K array of numbers, got {value!r}") from None
+    K = robot.n_tendons
+    if a.ndim == 1 and a.shape[0] == K:
+        a = a[None]
+    if a.ndim != 2 or a.shape[1] != K or a.shape[0] not in (1, B):
+        raise InputError(f"{name}: expected shape ({K},) or ({B}, {K}) for {K} tendons and {B} rods, got {a.shape}")
+    a = np.array(np.broadcast_to(a, (B, K)))
+    bad = ~np.isfinite(a)
+    if bad.any():
+        b, k = np.argwhere(bad)[0]
+        raise InputError(f"{name}[{b}][{k}]: non-finite value {float(a[b, k])!r}")
+    return a
+
+
+def check_displacements(robot: Robot, displacements, B: int, name: str = "displacements") -> np.ndarray:
+    """Motor displacements as (B, K) [m] (pull positive; (K,) is shared): nonzero only for
+    tendons under displacement control."""
+    q = _rows(robot, displacements, name, B)
+    tension_controlled = [k for k, t in enumerate(robot.tendons) if t.control != "displacement"]
+    bad = q[:, tension_controlled] != 0
+    if bad.any():
+        b, j = np.argwhere(bad)[0]
+        k = tension_controlled[j]
+        raise InputError(f"{name}[{b}][{k}] = {float(q[b, k])!r}: tendon {k} is under tension control "
+                         "(set its control = 'displacement' to command it by displacement)")
+    return q
+
+
+def check_slip(robot: Robot, slip, B: int, name: str = "slip") -> np.ndarray:
+    """Slip directions (B, K), each +1 (the tendon slides toward the motor: being pulled) or -1
+    (sliding away: being released)."""
+    sg = _rows(robot, slip, name, B)
+    bad = (sg != 1) & (sg != -1)
+    if bad.any():
+        b, k = np.argwhere(bad)[0]
+        raise InputError(f"{name}[{b}][{k}] must be +1 (pulled) or -1 (released), got {float(sg[b, k])!r}")
+    return sg

@@ -2,11 +2,14 @@
 
 Tables and keys (SI units; see README "Scene format"):
   [robot]      length, youngs_modulus, poisson_ratio, radius, density, precurvature
-  [[tendons]]  offset, routing ("straight" | "helix"), radius, turns, phase, length
+  [[tendons]]  offset, routing ("straight" | "helix" | "linear"), radius, turns, phase, length,
+               offset_end (linear), control ("tension" | "displacement"), compliance, pretension,
+               friction
   [loads]      gravity, tip_force, tip_moment, [[loads.point_forces]] (s, force)
-  [actuation]  tensions (B rows of K), [[actuation.steps]] (start, tensions) for dynamics
+  [actuation]  tensions (B rows of K), displacements (B rows of K, m), slip (B rows of K, +1 | -1),
+               [[actuation.steps]] (start, tensions) for dynamics
   [solver]     preset, nodes, integrator, model, rod, precision, tol, max_iter, max_step, jacobian,
-               continuation, specialize, error_estimate, threads
+               continuation, specialize, error_estimate, threads, driver, kink_loads, tendon_states
   [dynamics]   dt, alpha, steps, damping_shear, damping_bending, drag, shapes_every
   [control]    target (or target_tensions: the static tip there), method, input_model, gain_c,
                gain_k, epsilon, phi, tension_max, model_every (see tdcr_warp.control)
@@ -22,16 +25,18 @@ from pathlib import Path
 
 import numpy as np
 
-from .robot import InputError, PointForce, Robot, Tendon, check_tensions, require_memory
+from .robot import (InputError, PointForce, Robot, Tendon, check_displacements, check_slip, check_tensions,
+                    require_memory)
 from .types import StaticOptions
 
 __all__ = ["DynamicsSpec", "Scene", "load_scene", "scene_from_dict"]
 
 ROBOT_KEYS = {"length", "youngs_modulus", "poisson_ratio", "radius", "density", "precurvature"}
-TENDON_KEYS = {"offset", "routing", "radius", "turns", "phase", "length"}
+TENDON_KEYS = {"offset", "routing", "radius", "turns", "phase", "length", "offset_end", "control", "compliance",
+               "pretension", "friction"}
 LOAD_KEYS = {"gravity", "tip_force", "tip_moment", "point_forces"}
 POINT_KEYS = {"s", "force"}
-ACTUATION_KEYS = {"tensions", "steps"}
+ACTUATION_KEYS = {"tensions", "displacements", "slip", "steps"}
 STEP_KEYS = {"start", "tensions"}
 DYNAMICS_KEYS = {"dt", "alpha", "steps", "damping_shear", "damping_bending", "drag", "shapes_every"}
 CONTROL_KEYS = {"target", "target_tensions", "method", "input_model", "gain_c", "gain_k", "epsilon", "phi",
@@ -56,7 +61,9 @@ class DynamicsSpec:
 class Scene:
     """A loaded scene. robot: the batch of B rods; tensions: (B, K) [N]; options: the
     [solver] table; dynamics: the [dynamics] table (None without one); source: the parsed
-    TOML as a dict; control: the [control] table (None without one)."""
+    TOML as a dict; control: the [control] table (None without one); displacements (B, K)
+    [m] and slip (B, K): the statics commands of tendons under displacement control and the
+    slip directions of friction (None: not given)."""
 
     robot: Robot
     tensions: np.ndarray
@@ -64,6 +71,12 @@ class Scene:
     dynamics: DynamicsSpec | None
     source: dict
     control: dict | None = None
+    displacements: np.ndarray | None = None
+    slip: np.ndarray | None = None
+
+    def static_command(self) -> dict:
+        """The keyword arguments of solve_static for this scene's actuation."""
+        return {"displacements": self.displacements, "slip": self.slip}
 
 
 def load_scene(path) -> Scene:
@@ -159,13 +172,22 @@ def scene_from_dict(data: dict) -> Scene:
             raise InputError(f"{where} must be a table, got {t!r}")
         _no_unknown(t, TENDON_KEYS, where)
         routing = t.get("routing", "straight")
-        if routing not in ("straight", "helix"):
-            raise InputError(f"{where}.routing must be 'straight' or 'helix', got {routing!r}")
+        if routing not in ("straight", "helix", "linear"):
+            raise InputError(f"{where}.routing must be 'straight', 'helix' or 'linear', got {routing!r}")
         kw = {"routing": routing}
         if "offset" in t:
             kw["offset"] = _numbers(t["offset"], f"{where}.offset")
-        elif routing == "straight":
-            raise InputError(f"missing key 'offset' in {where} (straight routing)")
+        elif routing != "helix":
+            raise InputError(f"missing key 'offset' in {where} ({routing} routing)")
+        if routing == "linear":
+            kw["offset_end"] = _numbers(_required(t, "offset_end", where), f"{where}.offset_end")
+        elif "offset_end" in t:
+            raise InputError(f"{where}.offset_end is only for routing = \"linear\"")
+        for key in ("compliance", "pretension", "friction"):
+            if key in t:
+                kw[key] = _numbers(t[key], f"{where}.{key}")
+        if "control" in t:
+            kw["control"] = t["control"]
         if routing == "helix":
             kw["helix_radius"] = _required(t, "radius", where)
             kw["turns"] = _required(t, "turns", where)
@@ -253,4 +275,12 @@ def scene_from_dict(data: dict) -> Scene:
                 _numbers(control[key], f"[control].{key}")
         if "model_every" in control:
             _integer(control["model_every"], "[control].model_every")
-    return Scene(robot=robot, tensions=tensions, options=options, dynamics=dynamics, source=data, control=control)
+    B = tensions.shape[0]
+    displacements = slip = None
+    if "displacements" in act:
+        displacements = check_displacements(robot, _numbers(act["displacements"], "[actuation].displacements"), B,
+                                            "[actuation].displacements")
+    if "slip" in act:
+        slip = check_slip(robot, _numbers(act["slip"], "[actuation].slip"), B, "[actuation].slip")
+    return Scene(robot=robot, tensions=tensions, options=options, dynamics=dynamics, source=data, control=control,
+                 displacements=displacements, slip=slip)

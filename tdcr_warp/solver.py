@@ -46,9 +46,15 @@ def load_kernels(robot: Robot, options, device=None, *, dynamic: bool = False) -
     if options.model not in MODELS:  # the closed-form rung has no kernels
         return 0.0
     dev = wp.get_device(device)
-    features = scene_features(robot, pack_tendons(robot), options.specialize)
+    tendon = pack_tendons(robot)
     wdtype = PRECISIONS[options.precision][0]
-    for dyn in (False, True) if dynamic else (False,):
+    variants = [(False, scene_features(robot, tendon, options.specialize, options.kink_loads,
+                                       lengths=options.tendon_states))]
+    if robot.displaced:  # the reference state of displacement control
+        variants.append((False, scene_features(robot, tendon, options.specialize, options.kink_loads, "reference")))
+    if dynamic:
+        variants.append((True, scene_features(robot, tendon, options.specialize, options.kink_loads)))
+    for dyn, features in variants:
         k = make_shooting_kernels(wdtype, options.integrator, options.model, dyn, options.rod, features)
         _load_solver_kernels(k, _fused(options.driver, dev), dyn, dev)
     if dynamic:
@@ -74,21 +80,51 @@ class Shooting:
         self.n1 = n1 = tables.grid.shape[1]
         self.n_slots = (n1 - 1) * k.stages + 2 * n1
         self.model = put_model(k, self.dev, tables, lo, hi)
-        self.control = make_control(k, self.dev, tau)
+        self.control = make_control(k, self.dev, tau, self.n_slots)
         self.step = make_step(k, self.dev, b, self.n_slots, dynamic)
         self.nodes = make_state(k, self.dev, b, n1, dynamic)
         self.newton = make_work(k, self.dev, b)
-        self.x_in = wp.zeros(b, dtype=k.vec6, device=device)  # host-given starts
+        self.x_in = wp.zeros(b, dtype=k.vecu, device=device)  # host-given starts
         self.mask = wp.zeros(b, dtype=int, device=device)
         self.all_rods = wp.ones(b, dtype=int, device=device)
         self.fused = _fused(driver, device)
         # statics: the first Jacobian of a Broyden solve from probes over double steps, where that
         # stays accurate (RK4, error ~h^4, on a fine enough grid; Broyden corrects the rest)
-        self.coarse_jacobian = int(not dynamic and integrator == "rk4" and n1 - 1 >= COARSE_MIN_NODES)
+        self.coarse_allowed = int(not dynamic and integrator == "rk4" and n1 - 1 >= COARSE_MIN_NODES)
+        self.coarse_jacobian = self.coarse_allowed
         _load_solver_kernels(k, self.fused, dynamic, device)  # before threads race to it
 
     def set_tensions(self, tau: np.ndarray) -> None:
         set_tensions(self.dev, self.control, tau)
+
+    def set_command(self, tau: np.ndarray, avail: np.ndarray | None = None) -> None:
+        """Tensions (b, K) [N] and, under displacement control, the unstretched length the motor
+        gives each displaced tendon (b, K) [m]."""
+        self.set_tensions(tau)
+        if avail is not None and self.kern.tstate:
+            self.dev.put(self.control.avail, avail)
+
+    def set_taut(self, taut: np.ndarray) -> None:
+        """Which displaced tendons are taut (b, K) bool: their unknown is a tension; the others
+        are slack (zero tension; the unknown measures the slack)."""
+        if self.kern.tstate:
+            self.dev.put(self.control.taut, taut.astype(np.int32))
+
+    def set_memory(self, slip: np.ndarray, profile: np.ndarray | None) -> None:
+        """Friction: slip directions (b, K) in [-1, 1] and, for a stick-slip solve, the previous
+        solution's tension profile (b, S, 3K: tension, tau', state at every slot) or None. A
+        remembered profile lives on the exact evaluation points of the fine grid, so those solves
+        keep every probe on it (no coarse first Jacobian)."""
+        if not self.kern.friction:
+            return
+        ct, K = self.control, self.kern.K
+        self.dev.put(ct.slip, slip)
+        stick = np.zeros(slip.shape, dtype=np.int32) if profile is None else np.ones(slip.shape, dtype=np.int32)
+        self.dev.put(ct.stick, stick)
+        if profile is not None:
+            self.dev.put(ct.tau_old, profile[..., :K])
+            self.dev.put(ct.dtau_old, profile[..., K:2 * K])
+        self.coarse_jacobian = self.coarse_allowed if profile is None else 0
 
     def evaluate(self, x: np.ndarray) -> None:
         """One integration per rod from scaled unknowns x (b, 6), storing shapes and slots."""
@@ -152,11 +188,18 @@ class Shooting:
         return (self.newton.status.numpy() & layout.CONVERGED) != 0
 
     def results(self) -> dict[str, np.ndarray]:
-        """Host copies (float64) of the solution and the outcome of every rod."""
+        """Host copies (float64) of the solution and the outcome of every rod (with tendon states
+        also ``tendons`` (b, K, layout.TO_WIDTH), ``tension_nodes`` (b, N+1, K) and with friction
+        ``tension_slots`` (b, S, 3K))."""
         f64 = np.float64
         nw, out = self.newton, self.nodes
         status = nw.status.numpy().copy()
-        return {
+        extra = {}
+        if self.kern.tstate:
+            extra = {"tendons": out.tend.numpy().astype(f64), "tension_nodes": out.taun.numpy().astype(f64)}
+        if self.kern.friction:
+            extra["tension_slots"] = self.step.tprof.numpy().astype(f64)
+        return extra | {
             "positions": out.p.numpy().astype(f64), "rotations": out.R.numpy().astype(f64),
             "n": out.n.numpy().astype(f64), "m": out.m.numpy().astype(f64),
             "x": nw.x.numpy().astype(f64), "converged": (status & layout.CONVERGED) != 0,

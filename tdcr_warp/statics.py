@@ -22,11 +22,11 @@ from .build import Tables
 from .homotopy import continuation_steps, load_continuation
 from .kernels import layout
 from .parallel import parallel, split
-from .robot import InputError, Robot, check_tensions, require_memory
+from .robot import InputError, Robot, check_displacements, check_slip, check_tensions, require_memory
 from .solver import Shooting
 from .types import StaticOptions, describe_status
 
-__all__ = ["StaticOptions", "StaticProblem", "StaticSolution", "solve_static"]
+__all__ = ["StaticOptions", "StaticProblem", "StaticSolution", "reference_lengths", "solve_static"]
 
 
 @dataclass
@@ -40,9 +40,22 @@ class StaticSolution:
     converged (B,) bool; status (B,) bit flags (kernels/layout.py); iterations (B,);
     integrations (B,): base-to-tip integrations spent (the 7 of a first Jacobian in a Broyden RK4 solve with
     N >= 16 run over double steps, at about half the cost); residual (B,): L |r| [m];
-    orthogonality_error (B,): max |R^T R - I| over the nodes; jacobian (B, 6, 6): the last
-    scaled shooting Jacobian (reused by a warm start). tip_error_estimate (B,) [m]: with
-    ``error_estimate`` only.
+    orthogonality_error (B,): max |R^T R - I| over the nodes; jacobian (B, nu, nu): the last
+    scaled shooting Jacobian (reused by a warm start); unknowns (B, nu): the scaled shooting
+    unknowns (nu = 6 + one per displacement-controlled tendon). tip_error_estimate (B,) [m]:
+    with ``error_estimate`` only.
+
+    Per tendon (B, K): tendon_tension_base (at the motor side, s = 0) and tendon_tension_end
+    (just before its termination) [N]. With tendon states (displacement control or friction;
+    None otherwise): tendon_path_length, the length of its deformed path [m];
+    tendon_free_length, the unstretched tendon that path holds [m]; tendon_turning (with
+    friction), the total turning of its path [rad], kinks included where they are modelled;
+    tendon_tension (B, N+1, K) just distal of every node [N]; slack
+    (B, K): a displacement-controlled tendon with zero tension and length to spare. With
+    friction: slip (B, K), the slip direction each tendon was solved with (+1 pulled, -1
+    released, 0: stick-slip from ``history``); slip_state (B, N+1, K) int8 just distal of each
+    node: +1 sliding toward the motor, -1 away from it, 0 stuck; tension_slots: the profile a
+    following quasi-static solve starts from (``history``).
     """
 
     s: np.ndarray
@@ -59,6 +72,17 @@ class StaticSolution:
     orthogonality_error: np.ndarray
     jacobian: np.ndarray
     options: StaticOptions = field(repr=False)
+    unknowns: np.ndarray | None = None
+    tendon_tension_base: np.ndarray | None = None
+    tendon_tension_end: np.ndarray | None = None
+    tendon_path_length: np.ndarray | None = None
+    tendon_free_length: np.ndarray | None = None
+    tendon_turning: np.ndarray | None = None
+    tendon_tension: np.ndarray | None = None
+    slack: np.ndarray | None = None
+    slip: np.ndarray | None = None
+    slip_state: np.ndarray | None = None
+    tension_slots: np.ndarray | None = field(default=None, repr=False)
     tip_error_estimate: np.ndarray | None = None
 
     @property
@@ -132,11 +156,12 @@ def _constant_curvature(robot: Robot, tau: np.ndarray, opts: StaticOptions) -> S
 class StaticProblem:
     """The device arrays of one robot batch at one shape (B rods, options, device), built
     once and reused by every solve of that shape: the tables, and per CPU thread the
-    Model / Control / State / Work of its rods (tdcr_warp.solver.Shooting)."""
+    Model / Control / State / Work of its rods (tdcr_warp.solver.Shooting). ``mode``
+    "reference": every tendon in tension control, frictionless (tdcr_warp.build.scene_features)."""
 
-    def __init__(self, robot: Robot, B: int, opts: StaticOptions, device):
+    def __init__(self, robot: Robot, B: int, opts: StaticOptions, device, mode: str = "solve"):
         self.robot, self.B, self.opts, self.device = robot, B, opts, device
-        self.tables = Tables.of(robot, opts.nodes, opts.specialize)
+        self.tables = Tables.of(robot, opts.nodes, opts.specialize, opts.kink_loads, mode, opts.tendon_states)
         self.chunks = split(B, device, opts.threads)
         K = robot.n_tendons
         self.solvers = [Shooting(self.tables, lo, hi, np.zeros((hi - lo, K)), precision=opts.precision,
@@ -144,40 +169,198 @@ class StaticProblem:
                                  driver=opts.driver)
                         for lo, hi in self.chunks]
         self.lock = threading.Lock()
+        self._reference = None
 
-    def solve(self, tau: np.ndarray, initial: StaticSolution | None) -> StaticSolution:
+    def reference_lengths(self) -> np.ndarray:
+        """(B, K) the unstretched length of every tendon at the reference state (each tendon in
+        tension control at its pretension, frictionless, under the robot's external loads),
+        solved once: a displacement q asks the motor to take in q of it."""
+        if self._reference is None:
+            ref = StaticProblem(self.robot, self.B, self.opts, self.device, mode="reference")
+            pre = np.broadcast_to(self.robot.tendon_columns("pretension"), (self.B, self.robot.n_tendons))
+            sol = ref.solve(np.array(pre), None)
+            if not sol.converged.all():
+                bad = int(np.flatnonzero(~sol.converged)[0])
+                raise InputError(f"the reference state of displacement control (every tendon at its pretension) "
+                                 f"did not converge for rod {bad}: {sol.failure_reasons()[bad]}")
+            self._reference = sol.tendon_free_length
+        return self._reference
+
+    def command(self, tau: np.ndarray, displacements: np.ndarray | None) -> tuple[np.ndarray, np.ndarray | None]:
+        """Tensions with displaced columns zeroed, and the unstretched length the motor gives each
+        displaced tendon (reference - q), or an InputError where that is not positive."""
+        disp = list(self.robot.displaced)
+        if not self.tables.features.displaced:
+            return tau, None
+        q = np.zeros_like(tau) if displacements is None else displacements
+        avail = np.zeros_like(tau)
+        avail[:, disp] = self.reference_lengths()[:, disp] - q[:, disp]
+        bad = avail[:, disp] <= 0
+        if bad.any():
+            b, j = np.argwhere(bad)[0]
+            k = disp[j]
+            raise InputError(f"displacements[{b}][{k}] = {float(q[b, k])!r} m needs a negative tendon length: tendon {k} "
+                             f"holds {self.reference_lengths()[b, k]:.6g} m of unstretched tendon at its reference")
+        tau = tau.copy()
+        tau[:, disp] = 0.0
+        return tau, avail
+
+    def start(self, tau: np.ndarray, avail: np.ndarray | None) -> np.ndarray:
+        """Scaled straight-rod start (B, nu): each displaced tendon at the tension that the linear
+        straight-rod model gives it (negative: its slack), the base wrench of those tensions."""
+        t, B = self.tables, self.B
+        scales = t.scale_rows(B)
+        if avail is None:
+            return t.straight.guess(tau) / scales
+        disp = list(self.robot.displaced)
+        L = np.broadcast_to(self.robot.length, (B,))[:, None]
+        slope = np.broadcast_to(t.tendon[..., layout.T_SLACK_SLOPE], tau.shape)[:, disp]
+        free = np.broadcast_to(t.straight.path, tau.shape)[:, disp]
+        z = (free - avail[:, disp]) / (L * slope)
+        guess = tau.copy()
+        guess[:, disp] = np.maximum(z, 0.0) * scales[:, 6:]
+        return np.concatenate([t.straight.guess(guess) / scales[:, :6], z], axis=1)
+
+    def solve(self, tau: np.ndarray, initial: StaticSolution | None, displacements: np.ndarray | None = None,
+              slip: np.ndarray | None = None, history: StaticSolution | None = None) -> StaticSolution:
         opts, tables, B = self.opts, self.tables, self.B
+        nu = tables.nu
         scales = tables.scale_rows(B)
-        if initial is not None:
-            if initial.base_wrench.shape[0] != B:
-                raise InputError(f"initial: warm start has {initial.base_wrench.shape[0]} rods, batch has {B}")
-            x0, J0 = initial.base_wrench / scales, initial.jacobian
+        tau, avail = self.command(tau, displacements)
+        K = tau.shape[1]
+        slip = np.ones((B, K)) if slip is None else slip
+        profile = None
+        if history is not None:
+            if history.base_wrench.shape[0] != B:
+                raise InputError(f"history: a solution of {history.base_wrench.shape[0]} rods, the batch has {B}")
+            if tables.features.friction:
+                if history.tension_slots is None or history.tension_slots.shape != (B, self.solvers[0].n_slots, 3 * K):
+                    raise InputError("history: expected a solution of this robot and solver options with friction "
+                                     "(its tension_slots)")
+                profile = history.tension_slots
+                # the predictor of a stick-slip step: the whole tendon slipping the way its motor moved
+                was = history.tendon_tension_base if avail is None else history.tendon_free_length
+                now = tau if avail is None else avail
+                moved = np.where(np.broadcast_to(tables.tmode[0] >= 0, (B, K)), was - now, now - was)
+                slip = np.where(moved >= 0, 1.0, -1.0)
+        # a quasi-static step starts from the last one, with a fresh Jacobian (a chain of Broyden
+        # updates goes stale as the shape and the stick-slip pattern move)
+        start = initial or history
+        warm = start is not None
+        if warm:
+            x_init = start.unknowns if start.unknowns is not None else start.base_wrench / scales[:, :6]
+            if x_init.shape != (B, nu) or start.jacobian.shape[1:] != (nu, nu):
+                raise InputError(f"initial: warm start has shape {x_init.shape}, this problem needs ({B}, {nu})")
+            x0, J0 = x_init, (start.jacobian if initial is not None else None)
         else:
-            x0, J0 = tables.straight.guess(tau) / scales, None
+            x0, J0 = self.start(tau, avail), None
         newton = dict(tol=opts.tolerance, max_iter=opts.max_iter, max_step=opts.max_step,
                       broyden=opts.jacobian == "broyden")
+        free = None if avail is None else np.broadcast_to(tables.straight.path, tau.shape)
+
+        disp = np.flatnonzero(tables.tmode[0] >= 0)
+        j_of = 6 + tables.tmode[0, disp]
 
         def run(i):
             lo, hi = self.chunks[i]
             sh = self.solvers[i]
-            sh.set_tensions(tau[lo:hi])
+            sh.set_command(tau[lo:hi], None if avail is None else avail[lo:hi])
+            sh.set_memory(slip[lo:hi], None)
+            taut = np.ones((hi - lo, K), dtype=bool)
+            taut[:, disp] = x0[lo:hi, j_of] >= 0
+            sh.set_taut(taut)
             if J0 is not None:
                 sh.dev.put(sh.newton.J, J0[lo:hi])
             sh.solve(x0[lo:hi], fresh_jacobian=J0 is None, **newton)
-            if opts.continuation and initial is None:
+            if opts.continuation and not warm:
                 finite, large, steps = continuation_steps(x0[lo:hi], opts.continuation)
                 redo = finite & (~sh.converged() | large)
                 if redo.any():
                     load_continuation(sh, tables.rows("rod", lo, hi), tables.rows("pforce", lo, hi), tau[lo:hi],
-                                      x0[lo:hi], redo, steps, newton)
+                                      x0[lo:hi], redo, steps, newton,
+                                      None if avail is None else (free[lo:hi], avail[lo:hi]))
+            if len(disp):
+                settle_slack(sh, taut, disp, j_of, newton)
+            if profile is not None:  # the stick-slip corrector, from the slipping predictor
+                ok = sh.converged()
+                iters, shots = sh.newton.iters.numpy().copy(), sh.newton.n_shoot.numpy().copy()
+                sh.set_memory(slip[lo:hi], profile[lo:hi])
+                sh.solve(np.where(ok[:, None], sh.newton.x.numpy(), x0[lo:hi]), **newton)
+                if len(disp):
+                    settle_slack(sh, taut, disp, j_of, newton)
+                sh.dev.put(sh.newton.iters, sh.newton.iters.numpy() + iters)
+                sh.dev.put(sh.newton.n_shoot, sh.newton.n_shoot.numpy() + shots)
             return sh.results()
 
         parts = parallel(run, list(range(len(self.chunks))))
         out = parts[0] if len(parts) == 1 else {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
-        out["base_wrench"] = out.pop("x") * scales
+        x = out.pop("x")
+        out["base_wrench"] = x[:, :6] * scales[:, :6]
         grid = tables.grid
         s = np.broadcast_to(grid, (B, grid.shape[1])).astype(np.float64)
-        return StaticSolution(s=s, options=opts, **out)
+        tendon = tendon_results(tables, out, x, tau, slip, profile is not None)
+        return StaticSolution(s=s, options=opts, unknowns=x, **out, **tendon)
+
+
+SLACK_PASSES = 8
+
+
+def settle_slack(sh: Shooting, taut: np.ndarray, disp: np.ndarray, j_of: np.ndarray, newton: dict) -> None:
+    """The complementarity of displacement control, per rod: a taut tendon solved to a negative
+    tension goes slack, a slack one whose path needs more tendon than it has goes taut, and the
+    rod is solved again from where it stopped, until the set settles (``SLACK_PASSES``; then
+    flagged UNSETTLED). Each solve is smooth in its unknowns; the unknown of a tendon that
+    switches is near zero either way. Iterations and integrations add up over the passes."""
+    iters = sh.newton.iters.numpy().astype(np.int64)
+    shots = sh.newton.n_shoot.numpy().astype(np.int64)
+    for _ in range(SLACK_PASSES):
+        z = sh.newton.x.numpy()[:, j_of]
+        ok = sh.converged()
+        flip = ok[:, None] & np.where(taut[:, disp], z < 0, z > 0)
+        rods = flip.any(axis=1)
+        if not rods.any():
+            break
+        taut[:, disp] ^= flip
+        sh.set_taut(taut)
+        sh.solve(None, mask=rods.astype(np.int32), **newton)
+        iters[rods] += sh.newton.iters.numpy()[rods]
+        shots[rods] += sh.newton.n_shoot.numpy()[rods]
+    else:
+        z = sh.newton.x.numpy()[:, j_of]
+        bad = np.where(taut[:, disp], z < 0, z > 0).any(axis=1)
+        if bad.any():
+            st = sh.newton.status.numpy()
+            st[bad] = (st[bad] & ~layout.CONVERGED) | layout.UNSETTLED
+            sh.dev.put(sh.newton.status, st)
+    sh.dev.put(sh.newton.iters, iters)
+    sh.dev.put(sh.newton.n_shoot, shots)
+
+
+def tendon_results(tables: Tables, out: dict, x: np.ndarray, tau: np.ndarray, slip: np.ndarray,
+                   stick: bool) -> dict:
+    """The per-tendon fields of a StaticSolution from a solve's raw results (popped from ``out``)."""
+    f = tables.features
+    if not f.tendons:
+        return {"tendon_tension_base": tau.copy(), "tendon_tension_end": tau.copy()}
+    td = out.pop("tendons")
+    res = {"tendon_tension_base": td[..., layout.TO_BASE], "tendon_tension_end": td[..., layout.TO_END],
+           "tendon_path_length": td[..., layout.TO_PATH], "tendon_free_length": td[..., layout.TO_FREE],
+           "tendon_turning": td[..., layout.TO_TURN] if f.friction else None,
+           "tendon_tension": out.pop("tension_nodes")}
+    slack = np.zeros(tau.shape, dtype=bool)
+    disp = np.flatnonzero(tables.tmode[0] >= 0)
+    slack[:, disp] = td[:, disp, layout.TO_BASE] == 0
+    res["slack"] = slack
+    if f.friction:
+        slots = out.pop("tension_slots")
+        K = tau.shape[1]
+        n_int = tables.grid.shape[1] - 1
+        stages = (slots.shape[1] - 2 * (n_int + 1)) // n_int
+        first = stages * np.minimum(np.arange(n_int + 1), n_int - 1)  # the first stage just distal of each node
+        res["slip"] = np.zeros_like(slip) if stick else slip.copy()
+        res["slip_state"] = slots[:, first, 2 * K:].astype(np.int8)
+        res["tension_slots"] = slots
+    return res
 
 
 CACHE_SIZE = 8
@@ -206,32 +389,72 @@ def _problem(robot: Robot, B: int, opts: StaticOptions, device) -> tuple[StaticP
     return problem, True
 
 
-def solve_static(robot: Robot, tensions, *, options: StaticOptions | None = None,
-                 device: str | None = None, initial: StaticSolution | None = None,
-                 **overrides) -> StaticSolution:
+def reference_lengths(robot: Robot, *, options: StaticOptions | None = None, device: str | None = None,
+                      **overrides) -> np.ndarray:
+    """(B, K) the unstretched length of every tendon in the reference state of displacement
+    control: each tendon in tension control at its pretension, frictionless, under the robot's
+    external loads [m] (a displacement q leaves the tendon this minus q)."""
+    opts = replace(options or StaticOptions(), **overrides)
+    problem, locked = _problem(robot, robot.batch_size, opts, wp.get_device(device))
+    try:
+        return problem.reference_lengths().copy()
+    finally:
+        if locked:
+            problem.lock.release()
+
+
+def solve_static(robot: Robot, tensions=None, *, displacements=None, slip=None, history: StaticSolution | None = None,
+                 options: StaticOptions | None = None, device: str | None = None,
+                 initial: StaticSolution | None = None, **overrides) -> StaticSolution:
     """Solve the statics of a batch of rods.
 
-    robot: the batch (shared or per-rod fields); tensions: (B, K) [N], each >= 0.
-    options / overrides: :class:`StaticOptions` fields (nodes, integrator, model, ...).
+    robot: the batch (shared or per-rod fields); tensions: (B, K) or (K,) [N], each >= 0 (None:
+    zeros), for the tendons under tension control (0 for the others). displacements: (B, K) or
+    (K,) motor displacements [m], pull positive, for the tendons under displacement control
+    (0 for the others): the motor takes in q of unstretched tendon relative to the reference
+    state, where every tendon holds its pretension. slip: (B, K) or (K,) friction's slip
+    direction per tendon, +1 (pulled, the default) or -1 (released). history: the previous
+    solution of a quasi-static sequence (friction): each tendon keeps its previous tension where
+    friction can hold it (stick) and slips where it cannot (tdcr_warp.tendons); slip is then
+    not used. options / overrides: :class:`StaticOptions` fields (nodes, integrator, model, ...).
     device: "cpu" or "cuda:0" (None: Warp's default). initial: an earlier solution of the
-    same batch size to warm-start from (its base wrench and Jacobian).
+    same batch size to warm-start from (its unknowns and Jacobian).
     """
     opts = replace(options or StaticOptions(), **overrides)
-    tau = check_tensions(robot, tensions)
-    if opts.model == "constant_curvature":
-        return _constant_curvature(robot, tau, opts)
+    B = robot.batch_size
+    for arr in (tensions, displacements, slip):
+        a = np.asarray(arr) if arr is not None else None
+        if a is not None and a.ndim == 2:
+            B = max(B, a.shape[0])
+    tau = check_tensions(robot, np.zeros((B, robot.n_tendons)) if tensions is None else tensions)
     B = tau.shape[0]
+    if robot.displaced:
+        disp = list(robot.displaced)
+        if (tau[:, disp] != 0).any():
+            b, j = np.argwhere(tau[:, disp] != 0)[0]
+            raise InputError(f"tensions[{b}][{disp[j]}] = {float(tau[b, disp[j]])!r}: tendon {disp[j]} is under displacement "
+                             "control (command it with displacements)")
+    if displacements is not None and not robot.displaced:
+        raise InputError("displacements: no tendon of this robot is under displacement control")
+    q = None if displacements is None else check_displacements(robot, displacements, B)
+    sg = None if slip is None else check_slip(robot, slip, B)
+    if opts.model == "constant_curvature":
+        if robot.displaced or any(np.any(t.friction > 0) for t in robot.tendons):
+            raise InputError("solver model 'constant_curvature' has no displacement control or friction: "
+                             "use model 'coupled' or 'point'")
+        return _constant_curvature(robot, tau, opts)
     dev = wp.get_device(device)
     require_memory(B * (opts.nodes + 1) * 400.0, f"nodes = {opts.nodes} for {B} rods: the shapes")
     problem, locked = _problem(robot, B, opts, dev)
     try:
-        sol = problem.solve(tau, initial)
+        sol = problem.solve(tau, initial, q, sg, history)
     finally:
         if locked:
             problem.lock.release()
     if opts.error_estimate:
-        coarse = solve_static(robot, tau, options=replace(opts, nodes=max(1, opts.nodes // 2), error_estimate=False),
-                              device=device, initial=sol)
+        coarse = solve_static(robot, tau, displacements=q, slip=sg,
+                              options=replace(opts, nodes=max(1, opts.nodes // 2), error_estimate=False),
+                              device=device, initial=sol if history is None else None)
         order = {"euler": 1, "midpoint": 2, "rk4": 4}[opts.integrator]
         est = 2.0 * np.linalg.norm(sol.tip_position - coarse.tip_position, axis=1) / (2**order - 1)
         sol.tip_error_estimate = np.where(coarse.converged, est, np.inf)

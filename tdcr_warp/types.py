@@ -63,7 +63,13 @@ class StaticOptions:
     CPU threads (None: all cores; CUDA uses one). driver: how the Newton loop runs: "fused"
     (all iterations of a rod in one thread, one launch per solve: the CPU default),
     "probes" (a thread per rod and probe, one launch per iteration: the CUDA default), None:
-    the device's default.
+    the device's default. kink_loads: in the coupled model, the point loads of tendons kinked
+    where n or m jumps (a tendon ends or a point force acts before the tip): on, global force
+    and moment balance is exact; off, the published coupled model of Rucker & Webster (2011),
+    which omits them (about 0.5 mm apart on a two-segment robot under a large tip load).
+    tendon_states: integrate every tendon's path length and unstretched length (and report
+    them) also where no tendon is under displacement control or has friction (there they are
+    integrated anyway).
     """
 
     nodes: int = 50
@@ -80,6 +86,8 @@ class StaticOptions:
     error_estimate: bool = False
     threads: int | None = None
     driver: str | None = None
+    kink_loads: bool = True
+    tendon_states: bool = False
 
     def __post_init__(self):
         def integer(v, low, high=10**9):
@@ -106,6 +114,8 @@ class StaticOptions:
             ("continuation", integer(self.continuation, 0, 10_000), "an integer in [0, 10000]"),
             ("threads", self.threads is None or integer(self.threads, 1), "a positive integer"),
             ("driver", self.driver is None or one_of(self.driver, DRIVERS), f"one of {DRIVERS}"),
+            ("kink_loads", isinstance(self.kink_loads, bool), "true or false"),
+            ("tendon_states", isinstance(self.tendon_states, bool), "true or false"),
         ]
         for name, ok, what in checks:
             if not ok:

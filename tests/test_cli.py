@@ -26,6 +26,17 @@ def write(tmp_path, text, name="scene.toml"):
     return p
 
 
+def test_displacement_example_reports_each_tendon(tmp_path):
+    """examples/displacement_pair.toml: tendon 1 pulled 2 mm, its antagonist released 2 mm."""
+    out = tmp_path / "out"
+    assert main(["static", str(EXAMPLES / "displacement_pair.toml"), "--out", str(out), "--no-figures"]) == 0
+    tendons = json.loads((out / "results.json").read_text())["rods"][0]["tendons"]
+    assert [t["slack"] for t in tendons] == [False, False, True, False]
+    assert tendons[2]["tension_base"] == 0.0 and tendons[0]["tension_base"] > 5.0
+    assert tendons[1]["tension_base"] == pytest.approx(tendons[3]["tension_base"], rel=1e-9)
+    assert all(t["free_length"] > 0.49 for t in tendons)
+
+
 def test_static_example_outputs_agree_with_api(tmp_path, capsys):
     out = tmp_path / "out"
     assert main(["static", str(EXAMPLES / "seed_robot.toml"), "--out", str(out)]) == 0
@@ -42,7 +53,8 @@ def test_static_example_outputs_agree_with_api(tmp_path, capsys):
     assert np.shape(res["tip_position"]) == (1, 3) and len(res["iterations"]) == len(res["residual"]) == 1
     rod = res["rods"][0]
     assert rod.keys() == {"tip_position", "tip_rotation", "converged", "status", "iterations", "residual",
-                          "orthogonality_error"}
+                          "orthogonality_error", "tendons"}
+    assert rod["tendons"][0] == {"tension_base": 3.0, "tension_end": 3.0}  # tension control, no friction
     assert np.shape(rod["tip_position"]) == (3,) and np.shape(rod["tip_rotation"]) == (3, 3)
     assert rod["status"] == "converged" and rod["converged"] is True
     assert (out / "shapes.png").stat().st_size > 1000

@@ -1,0 +1,80 @@
+"""Cost per solve of the tendon features relative to tension control, on the report's robot
+(four straight tendons of 0.3 mm steel wire, gravity, coupled Cosserat, RK4, N = 40), in the same run, medians over
+interleaved repeats: displacement control of all four tendons (10 unknowns instead of 6; the
+displacements are those of the tension-control shapes, so every variant solves the same
+robots), and capstan friction (mu = 0.2, slip +1) under tension control. The issue's goals:
+<= 1.5x and <= 1.3x. Writes results/bench_tendons.json.
+
+    python experiments/bench_tendons.py [--rods 256] [--repeats 5]
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _common import ROOT, metadata, write_report  # noqa: E402
+
+import tdcr_warp as tw  # noqa: E402
+from tdcr_warp.statics import reference_lengths  # noqa: E402
+
+OFFSETS = [(0.01, 0.0), (0.0, 0.01), (-0.01, 0.0), (0.0, -0.01)]
+
+
+def robot(**tendon) -> tw.Robot:
+    """Steel wires of 0.3 mm (compliance 1 / (E_t A_t)): four displacement-controlled tendons at
+    90 degrees with inextensible wires have a co-contraction mode (+,-,+,-) that no length fixes."""
+    return tw.Robot(density=7800.0, gravity=(0, 0, -9.81),
+                    tendons=[tw.Tendon(offset=o, compliance=2.7e-5, **tendon) for o in OFFSETS])
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--rods", type=int, default=256)
+    ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--nodes", type=int, default=40)
+    args = ap.parse_args(argv)
+    rng = np.random.default_rng(0)
+    tau = rng.uniform(0.0, 4.0, (args.rods, 4)) * (rng.random((args.rods, 4)) < 0.5)
+    opts = dict(nodes=args.nodes)
+    plain, disp, fric = robot(), robot(control="displacement"), robot(friction=0.2)
+    t0 = time.perf_counter()
+    ref = tw.solve_static(plain, tau, tendon_states=True, **opts)
+    q = reference_lengths(disp, **opts) - ref.tendon_free_length
+    cases = {"tension": lambda: tw.solve_static(plain, tau, **opts),
+             "displacement": lambda: tw.solve_static(disp, displacements=q, **opts),
+             "friction": lambda: tw.solve_static(fric, tau, **opts)}
+    sols = {name: f() for name, f in cases.items()}  # warm-up: kernels compiled or loaded
+    print(f"kernels ready in {time.perf_counter() - t0:.1f} s")
+    for name, s in sols.items():
+        assert s.converged.all(), (name, s.failure_reasons())
+    err = np.abs(sols["displacement"].tip_position - sols["tension"].tip_position).max()
+    times = {name: [] for name in cases}
+    for _ in range(args.repeats):
+        for name, f in cases.items():
+            t = time.perf_counter()
+            f()
+            times[name].append(time.perf_counter() - t)
+    med = {k: statistics.median(v) for k, v in times.items()}
+    iters = {k: float(np.mean(s.iterations)) for k, s in sols.items()}
+    shots = {k: float(np.mean(s.integrations)) for k, s in sols.items()}
+    for k in cases:
+        print(f"{k:13s} {med[k] * 1e3:8.1f} ms per batch of {args.rods}  ({med[k] / med['tension']:.2f}x tension)  "
+              f"iterations {iters[k]:.1f}  integrations {shots[k]:.1f}")
+    print(f"displacement-controlled tips vs tension-controlled: {err:.1e} m")
+    write_report(ROOT / "results" / "bench_tendons.json",
+                 {"meta": metadata("cpu", rods=args.rods, repeats=args.repeats, nodes=args.nodes),
+                  "median_s": med, "ratio_to_tension": {k: med[k] / med["tension"] for k in med},
+                  "mean_iterations": iters, "mean_integrations": shots, "times_s": times,
+                  "displacement_tip_vs_tension_m": err})
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
