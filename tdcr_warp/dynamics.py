@@ -22,9 +22,9 @@ from .kernels import layout
 from .kernels.history import make_history_kernels
 from .parallel import parallel, split
 from .progress import Progress
-from .robot import InputError, Robot, check_tensions, require_memory
+from .robot import InputError, Robot, check_displacements, check_tensions, require_memory
 from .solver import Shooting
-from .statics import StaticSolution, solve_static
+from .statics import StaticSolution, reference_lengths, settle_slack, solve_static
 from .types import StaticOptions
 
 __all__ = ["Simulator", "StepResult", "Trajectory", "bdf_alpha_coefficients"]
@@ -90,11 +90,19 @@ class Simulator:
     (:class:`StaticOptions`: nodes, integrator, model, precision, tol, max_iter, ...).
     initial: a static solution of the same rods (possibly under other tip loads) to start
     from at rest, instead of solving the statics under ``tensions``.
+
+    Tendons under displacement control take ``displacements`` (B, K) [m] (in ``step`` too),
+    with one tension unknown each and the slack complementarity settled every step, as in
+    statics. Friction: the slip direction of a tendon follows its sliding velocity, smoothed,
+    sigma = tanh(-d ell / dt / slip_speed) with ell its path length (from the last two steps;
+    shortening: sliding toward the motor, +1); the static start uses slip +1. Below
+    ``slip_speed`` [m/s] friction fades like viscous friction: dynamics has no static stick.
     """
 
-    def __init__(self, robot: Robot, tensions, *, dt: float, alpha: float = 0.0,
+    def __init__(self, robot: Robot, tensions=None, *, dt: float, alpha: float = 0.0,
                  options: StaticOptions | None = None, device: str | None = None,
-                 initial: StaticSolution | None = None, **overrides):
+                 initial: StaticSolution | None = None, displacements=None, slip_speed: float = 1e-3,
+                 **overrides):
         if not (isinstance(dt, (int, float)) and math.isfinite(dt) and dt > 0):
             raise InputError(f"dt must be a positive number of seconds, got {dt!r}")
         if not (isinstance(alpha, (int, float)) and -0.5 < alpha <= 0.0):
@@ -104,16 +112,16 @@ class Simulator:
         self.dt, self.alpha = float(dt), float(alpha)
         self.coef = bdf_alpha_coefficients(self.dt, self.alpha)
         self._warn_single_shooting(robot, robot.section())
-        tau = check_tensions(robot, tensions)
+        if not (isinstance(slip_speed, (int, float)) and math.isfinite(slip_speed) and slip_speed > 0):
+            raise InputError(f"slip_speed must be a positive speed [m/s], got {slip_speed!r}")
+        self.slip_speed = float(slip_speed)
+        tau = check_tensions(robot, np.zeros((robot.batch_size, robot.n_tendons)) if tensions is None else tensions)
         self.B = tau.shape[0]
         self.dev = wp.get_device(device)
         if self.opts.model == "constant_curvature":
             raise InputError("dynamics needs a rod model: solver model 'coupled' or 'point'")
-        if robot.displaced or any(np.any(t.friction > 0) for t in robot.tendons):
-            raise InputError("dynamics: tendons under displacement control or with friction are not simulated yet "
-                             "(statics only); use tension control and friction = 0")
-        static = initial if initial is not None else solve_static(robot, tau, options=self.opts,
-                                                                  device=self.dev)
+        static = initial if initial is not None else solve_static(robot, tau, options=self.opts, device=self.dev,
+                                                                  displacements=displacements)
         if static.base_wrench.shape[0] != self.B:
             raise InputError(f"initial: {static.base_wrench.shape[0]} rods, the batch has {self.B}")
         if not static.converged.all():
@@ -124,9 +132,18 @@ class Simulator:
         if tables.grid.shape[1] != static.s.shape[1]:
             raise InputError("initial: its node count differs from the simulation's")
         self.grid = np.broadcast_to(tables.grid, (self.B, tables.grid.shape[1]))
-        x0 = static.base_wrench / tables.scale_rows(self.B)
+        self.tables = tables
+        x0 = static.unknowns if static.unknowns is not None else static.base_wrench / tables.scale_rows(self.B)
+        if x0.shape[1] != tables.nu:
+            raise InputError(f"initial: {x0.shape[1]} shooting unknowns, this robot needs {tables.nu}")
+        self._static = static
+        self._reference = None
+        self.path = static.tendon_path_length
         self.chunks = split(self.B, self.dev, self.opts.threads)
-        self.parts = [_Chunk(self, tables, lo, hi, tau[lo:hi], x0[lo:hi], static.tip_position[lo:hi])
+        _, avail = self._command(tau, displacements)
+        self.slip = self.last_slip = np.ones((self.B, robot.n_tendons))  # the static start: pulled
+        self.parts = [_Chunk(self, tables, lo, hi, tau[lo:hi], x0[lo:hi], static.tip_position[lo:hi],
+                             None if avail is None else avail[lo:hi])
                       for lo, hi in self.chunks]
         self._tau_prev = tau
         self.alive = np.ones(self.B, dtype=bool)
@@ -163,19 +180,53 @@ class Simulator:
                       f"(rod {worst}: amplification {amp}; dt >= {math.exp(hi):.1e} s stays inside): steps may "
                       "fail, and are then flagged", stacklevel=3)
 
-    def step(self, tensions) -> StepResult:
-        """Advance every live rod by dt under ``tensions`` (B, K) [N]."""
-        tau = check_tensions(self.robot, tensions)
+    def _command(self, tensions, displacements) -> tuple[np.ndarray, np.ndarray | None]:
+        """Checked tensions (B, K) and the lengths given to displaced tendons (or None)."""
+        rb = self.robot
+        tau = check_tensions(rb, np.zeros((self.B, rb.n_tendons)) if tensions is None else tensions)
         if tau.shape[0] != self.B:
             raise InputError(f"tensions: {tau.shape[0]} rows for {self.B} rods")
+        if not rb.displaced:
+            if displacements is not None:
+                raise InputError("displacements: no tendon of this robot is under displacement control")
+            return tau, None
+        disp = list(rb.displaced)
+        if (tau[:, disp] != 0).any():
+            b, j = np.argwhere(tau[:, disp] != 0)[0]
+            raise InputError(f"tensions[{b}][{disp[j]}]: tendon {disp[j]} is under displacement control")
+        q = np.zeros_like(tau) if displacements is None else check_displacements(rb, displacements, self.B)
+        if self._reference is None:
+            self._reference = reference_lengths(rb, options=self.opts, device=self.dev)
+        avail = np.zeros_like(tau)
+        avail[:, disp] = self._reference[:, disp] - q[:, disp]
+        if (avail[:, disp] <= 0).any():
+            b, j = np.argwhere(avail[:, disp] <= 0)[0]
+            raise InputError(f"displacements[{b}][{disp[j]}] = {float(q[b, disp[j]])!r} m needs a negative tendon length")
+        return tau, avail
+
+    def _slip(self) -> np.ndarray:
+        """Slip directions from the tendons' path-length rates over the last step."""
+        path = np.concatenate([c.sh.nodes.tend.numpy()[..., layout.TO_PATH] for c in self.parts]).astype(np.float64)
+        rate = (path - self.path) / self.dt
+        self.path = path
+        return np.tanh(-rate / self.slip_speed)
+
+    def step(self, tensions=None, displacements=None) -> StepResult:
+        """Advance every live rod by dt under ``tensions`` (B, K) [N] (and ``displacements``
+        (B, K) [m] of the displacement-controlled tendons)."""
+        tau, avail = self._command(tensions, displacements)
         first = self.steps_done == 0
+        slip = self.slip if self.tables.features.friction else None
 
         def run(i):
             lo, hi = self.chunks[i]
-            return self.parts[i].step(tau[lo:hi], self._tau_prev[lo:hi], self.alive[lo:hi], first)
+            return self.parts[i].step(tau[lo:hi], self._tau_prev[lo:hi], self.alive[lo:hi], first,
+                                      None if avail is None else avail[lo:hi], None if slip is None else slip[lo:hi])
 
         parts = parallel(run, list(range(len(self.chunks))))
         self._tau_prev = tau
+        if self.tables.features.friction:
+            self.last_slip, self.slip = self.slip, self._slip()
         ok, status, iters, resid = (np.concatenate(x) for x in zip(*parts))
         newly_failed = self.alive & ~ok
         self.failed_step[newly_failed] = self.steps_done
@@ -200,13 +251,42 @@ class Simulator:
         cat["h"] = self.grid[:, -1] - self.grid[:, -2]
         return cat
 
+    def tendons(self) -> dict[str, np.ndarray]:
+        """Per rod and tendon (B, K) after the last step (tendon states only): tension_base,
+        tension_end [N], path_length [m], turning [rad] and, with friction, slip: the slip
+        direction that step used (the next one takes it from this step's motion)."""
+        if not self.tables.features.tendons:
+            raise InputError("tendons(): this robot has no tendon states (no displacement control or friction)")
+        td = np.concatenate([c.sh.nodes.tend.numpy() for c in self.parts]).astype(np.float64)
+        out = {"tension_base": td[..., layout.TO_BASE], "tension_end": td[..., layout.TO_END],
+               "path_length": td[..., layout.TO_PATH], "turning": td[..., layout.TO_TURN]}
+        if self.tables.features.friction:
+            out["slip"] = self.last_slip.copy()
+        return out
+
     def shapes(self) -> np.ndarray:
         """Current positions along s, (B, N+1, 3) [m] (frozen rods: their last trial)."""
         return np.concatenate([c.sh.nodes.p.numpy().astype(np.float64) for c in self.parts])
 
-    def simulate(self, schedule, steps: int, *, shapes_every: int = 0, progress: bool = False) -> Trajectory:
+    def simulate(self, schedule, steps: int, *, shapes_every: int = 0, progress: bool = False,
+                 displacements=None) -> Trajectory:
         """Open loop: ``schedule`` is (B, steps, K) or (steps, K) [N], or a callable of the
-        step index returning (B, K)."""
+        step index returning (B, K); ``displacements`` likewise [m] for the tendons under
+        displacement control (None: they stay at the start's)."""
+        disp_at = None
+        if displacements is not None:
+            if callable(displacements):
+                disp_at = displacements
+            else:
+                dsched = np.asarray(displacements, dtype=np.float64)
+                if dsched.ndim == 2:
+                    dsched = np.broadcast_to(dsched[None], (self.B,) + dsched.shape)
+                if dsched.shape != (self.B, steps, self.robot.n_tendons):
+                    raise InputError(f"displacements: expected shape ({self.B}, {steps}, {self.robot.n_tendons}) "
+                                     f"or ({steps}, {self.robot.n_tendons}), got {np.shape(displacements)}")
+
+                def disp_at(i):
+                    return dsched[:, i]
         if not isinstance(steps, int) or steps < 1:
             raise InputError(f"steps must be a positive integer, got {steps!r}")
         K = self.robot.n_tendons
@@ -242,7 +322,7 @@ class Simulator:
         bar = Progress(T, B) if progress else None
         for i in range(T):
             taus[i] = check_tensions(self.robot, get(i), name=f"schedule step {i}")
-            r = self.step(taus[i])
+            r = self.step(taus[i], None if disp_at is None else disp_at(i))
             tip[i + 1], vel[i + 1], acc[i + 1] = r.tip_position, r.tip_velocity, r.tip_acceleration
             conv[i], iters[i], resid[i], status[i] = r.converged, r.iterations, r.residual, r.status
             if shapes_every and (i + 1) % shapes_every == 0:
@@ -265,12 +345,19 @@ class _Chunk:
     history of every slot, the previous solution, the tip kinematics and the step outcome."""
 
     def __init__(self, sim: Simulator, tables: Tables, lo: int, hi: int, tau: np.ndarray, x0: np.ndarray,
-                 tip: np.ndarray):
+                 tip: np.ndarray, avail: np.ndarray | None):
         o = sim.opts
         self.sim = sim
         self.sh = sh = Shooting(tables, lo, hi, tau, precision=o.precision, integrator=o.integrator,
                                 model=o.model, device=sim.dev, dynamic=True, rod=o.rod, driver=o.driver)
-        self.hk = make_history_kernels(sh.dev.wdtype)
+        self.hk = make_history_kernels(sh.dev.wdtype, tables.nu)
+        self.disp = np.flatnonzero(tables.tmode[0] >= 0)
+        self.j_of = 6 + tables.tmode[0, self.disp]
+        self.taut = np.ones((hi - lo, tau.shape[1]), dtype=bool)
+        self.taut[:, self.disp] = x0[:, self.j_of] >= 0
+        sh.set_command(tau, avail)
+        sh.set_taut(self.taut)
+        sh.set_memory(np.ones(tau.shape), None)
         b, d = sh.b, sim.dev
         self.dyn = np.broadcast_to(tables.rows("dyn", lo, hi), (b, tables.dyn.shape[1]))
         self.stiffness = np.broadcast_to(tables.rows("stiffness", lo, hi), (b, 6))
@@ -297,10 +384,15 @@ class _Chunk:
     def tips(self):
         return [a.numpy().astype(np.float64) for a in self.tip[:3]]
 
-    def step(self, tau: np.ndarray, tau_prev: np.ndarray, alive: np.ndarray, first: bool):
+    def step(self, tau: np.ndarray, tau_prev: np.ndarray, alive: np.ndarray, first: bool, avail: np.ndarray | None,
+             slip: np.ndarray | None):
         sh, o, newton = self.sh, self.sim.opts, self.newton
-        sh.set_tensions(tau)
+        sh.set_command(tau, avail)
+        if slip is not None:
+            sh.set_memory(slip, None)
         sh.solve(self.x_start, mask=None if alive.all() else alive, fresh_jacobian=first, **newton)
+        if len(self.disp):
+            settle_slack(sh, self.taut, self.disp, self.j_of, newton)
         failed = alive & ~sh.converged()
         if failed.any():
             # A large tension change in one step: reach it by a homotopy in the tension increment,
@@ -310,7 +402,7 @@ class _Chunk:
             # A lightly damped rod that moves fast: single shooting amplifies start errors, so
             # the step is reached from a heavily damped copy of itself, which hardly moves from
             # x(i) and is better conditioned.
-            sh.set_tensions(tau)
+            sh.set_command(tau, avail)
             failed = self._damping_homotopy(failed)
         if failed.any():  # last resort: plain Newton (a fresh Jacobian at every iterate) from x(i)
             sh.solve(self.x_prev, mask=failed, **(newton | dict(broyden=False, max_iter=2 * o.max_iter)))

@@ -206,20 +206,55 @@ class StaticProblem:
         return tau, avail
 
     def start(self, tau: np.ndarray, avail: np.ndarray | None) -> np.ndarray:
-        """Scaled straight-rod start (B, nu): each displaced tendon at the tension that the linear
-        straight-rod model gives it (negative: its slack), the base wrench of those tensions."""
+        """Scaled straight-rod start (B, nu): the displaced tendons at the tensions of the linear
+        straight-rod model (``linear_tensions``), the base wrench of all tensions."""
         t, B = self.tables, self.B
         scales = t.scale_rows(B)
         if avail is None:
             return t.straight.guess(tau) / scales
-        disp = list(self.robot.displaced)
-        L = np.broadcast_to(self.robot.length, (B,))[:, None]
-        slope = np.broadcast_to(t.tendon[..., layout.T_SLACK_SLOPE], tau.shape)[:, disp]
-        free = np.broadcast_to(t.straight.path, tau.shape)[:, disp]
-        z = (free - avail[:, disp]) / (L * slope)
-        guess = tau.copy()
-        guess[:, disp] = np.maximum(z, 0.0) * scales[:, 6:]
+        guess, z = self.linear_tensions(tau, avail)
         return np.concatenate([t.straight.guess(guess) / scales[:, :6], z], axis=1)
+
+    def linear_tensions(self, tau: np.ndarray, avail: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Tensions (B, K) of the displaced tendons in the linear model of a straight rod, and
+        their scaled unknowns (B, Kd). Tendon k shortens by sum_j C_kj tau_j, C_kj = l_kj (r_k .
+        r_j / EI + 1 / EA) + c_k l_k delta_kj (l_kj = min(l_k, l_j): the bending and the
+        compression of tendon j act where it runs; r at the base), so the displaced set solves
+        C_DD tau_D = free_D - avail_D - C_DT tau_T, with an active set for slack (a negative
+        tension goes slack, the set solved again; pseudo-inverse: four tendons at 90 degrees
+        have a co-contraction mode no length fixes)."""
+        rb, t = self.robot, self.tables
+        B, K = tau.shape
+        disp = np.flatnonzero(t.tmode[0] >= 0)
+        r = np.broadcast_to(rb.tendon_routing(0.0)[0], (B, K, 3))
+        lk = np.broadcast_to(rb.tendon_lengths(), (B, K))
+        lkj = np.minimum(lk[:, :, None], lk[:, None, :])
+        sec = rb.section()
+        ei = np.broadcast_to(sec["kbt"][:, 0], (B,))[:, None, None]
+        ea = np.broadcast_to(sec["kse"][:, 2], (B,))[:, None, None]
+        C = lkj * (np.einsum("bki,bji->bkj", r, r) / ei + 1.0 / ea)
+        C = C + np.eye(K) * (np.broadcast_to(rb.tendon_columns("compliance"), (B, K)) * lk)[:, :, None]
+        is_disp = np.zeros(K, dtype=bool)
+        is_disp[disp] = True
+        free = np.broadcast_to(t.straight.path, (B, K))
+        known = np.where(is_disp, 0.0, tau)
+        rhs = free - avail - np.einsum("bkj,bj->bk", C, known)
+        active = np.broadcast_to(is_disp, (B, K)).copy()
+        for _ in range(len(disp) + 1):
+            both = active[:, :, None] & active[:, None, :]
+            M = np.where(both, C, np.eye(K))
+            sol = np.einsum("bkj,bj->bk", np.linalg.pinv(M), np.where(active, rhs, 0.0))
+            neg = active & (sol < 0)
+            if not neg.any():
+                break
+            active &= ~neg
+        guess = np.where(is_disp, np.where(active, sol, 0.0), tau)
+        scales = t.scale_rows(B)[:, 6:]
+        L = np.broadcast_to(rb.length, (B,))[:, None]
+        slope = np.broadcast_to(t.tendon[..., layout.T_SLACK_SLOPE], (B, K))[:, disp]
+        needed = (free - np.einsum("bkj,bj->bk", C, guess))[:, disp]
+        z = np.where(active[:, disp], guess[:, disp] / scales, (needed - avail[:, disp]) / (L * slope))
+        return guess, z
 
     def solve(self, tau: np.ndarray, initial: StaticSolution | None, displacements: np.ndarray | None = None,
               slip: np.ndarray | None = None, history: StaticSolution | None = None) -> StaticSolution:

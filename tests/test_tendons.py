@@ -316,3 +316,48 @@ def test_bad_commands_name_the_field_and_value():
         tw.solve_static(rb, [0.0, 1.0], slip=[1, 0.5], nodes=10)
     with pytest.raises(tw.InputError, match="no tendon of this robot is under displacement control"):
         tw.solve_static(robot([tw.Tendon()]), [1.0], displacements=[0.001], nodes=10)
+
+
+def _dynamic_robot(**tendon):
+    return robot([tw.Tendon(offset=(0, OFF), control="displacement", pretension=0.5, compliance=2.7e-5, **tendon),
+                  tw.Tendon(offset=(0, -OFF), control="displacement", pretension=0.5, compliance=2.7e-5, **tendon)],
+                 damping_bending=(0.02, 0.02, 0.02), drag=(0.01, 0.01, 0.01))
+
+
+def test_displacement_control_in_dynamics_settles_to_the_static_answer():
+    """Pull one tendon 2 mm and release its antagonist 2 mm (it goes slack) in one step, hold:
+    the damped rod settles on the static solution of the same displacements."""
+    rb = _dynamic_robot()
+    sim = tw.Simulator(rb, displacements=[0.0, 0.0], dt=0.005, alpha=-0.2, nodes=20)
+    for _ in range(300):
+        r = sim.step(displacements=[0.002, -0.002])
+        assert r.converged.all()
+    st = tw.solve_static(rb, displacements=[0.002, -0.002], nodes=20)
+    assert np.abs(r.tip_position - st.tip_position).max() < 1e-7  # 6e-9 m measured after 1.5 s
+    t = sim.tendons()
+    assert t["tension_base"][0, 1] == 0.0 and st.slack[0, 1]
+    assert abs(t["tension_base"][0, 0] / st.tendon_tension_base[0, 0] - 1) < 1e-6
+
+
+def test_friction_in_dynamics_follows_the_sliding_direction():
+    """A tendon pulled at 5 mm/s slides toward the motor (sigma = tanh(5) ~ +1): its tension
+    falls toward the tip by exp(-sigma mu Theta); released, it rises; held still, the slip
+    direction and with it friction fade (no stick in dynamics)."""
+    mu, dt = 0.3, 0.005
+    rb = robot([tw.Tendon(offset=(0, OFF), control="displacement", pretension=0.5, compliance=2.7e-5, friction=mu)],
+               damping_bending=(0.02, 0.02, 0.02), drag=(0.01, 0.01, 0.01))
+    sim = tw.Simulator(rb, displacements=[0.0], dt=dt, alpha=-0.2, nodes=20)
+
+    def run(q_of_step, n):
+        for i in range(n):
+            assert sim.step(displacements=[q_of_step(i)]).converged.all()
+        return sim.tendons()
+
+    pull = run(lambda i: (i + 1) * dt * 0.005, 60)
+    assert pull["slip"][0, 0] > 0.99
+    ratio = pull["tension_end"] / pull["tension_base"]
+    assert np.allclose(ratio, np.exp(-pull["slip"] * mu * pull["turning"]), rtol=1e-12) and ratio[0, 0] < 0.97
+    release = run(lambda i: 0.0015 - (i + 1) * dt * 0.005, 30)
+    assert release["slip"][0, 0] < -0.99 and release["tension_end"][0, 0] > release["tension_base"][0, 0] * 1.01
+    held = run(lambda i: 0.00075, 200)
+    assert abs(held["slip"][0, 0]) < 1e-3
