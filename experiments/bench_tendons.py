@@ -5,7 +5,7 @@ displacements are those of the tension-control shapes, so every variant solves t
 robots), and capstan friction (mu = 0.2, slip +1) under tension control. The issue's goals:
 <= 1.5x and <= 1.3x. Writes results/bench_tendons.json.
 
-    python experiments/bench_tendons.py [--rods 256] [--repeats 5]
+    python experiments/bench_tendons.py [--rods 256] [--repeats 5] [--smoke] [--out results/bench_tendons.json]
 """
 
 from __future__ import annotations
@@ -39,7 +39,11 @@ def main(argv=None) -> int:
     ap.add_argument("--rods", type=int, default=256)
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--nodes", type=int, default=40)
+    ap.add_argument("--smoke", action="store_true", help="tiny sizes (for the test suite)")
+    ap.add_argument("--out", default=str(ROOT / "results" / "bench_tendons.json"))
     args = ap.parse_args(argv)
+    if args.smoke:
+        args.rods, args.repeats, args.nodes = 8, 1, 10
     rng = np.random.default_rng(0)
     tau = rng.uniform(0.0, 4.0, (args.rods, 4)) * (rng.random((args.rods, 4)) < 0.5)
     opts = dict(nodes=args.nodes)
@@ -68,7 +72,7 @@ def main(argv=None) -> int:
         print(f"{k:13s} {med[k] * 1e3:8.1f} ms per batch of {args.rods}  ({med[k] / med['tension']:.2f}x tension)  "
               f"iterations {iters[k]:.1f}  integrations {shots[k]:.1f}")
     print(f"displacement-controlled tips vs tension-controlled: {err:.1e} m")
-    write_report(ROOT / "results" / "bench_tendons.json",
+    write_report(args.out,
                  {"meta": metadata("cpu", rods=args.rods, repeats=args.repeats, nodes=args.nodes),
                   "median_s": med, "ratio_to_tension": {k: med[k] / med["tension"] for k in med},
                   "mean_iterations": iters, "mean_integrations": shots, "times_s": times,

@@ -17,6 +17,17 @@ in [0.01, 1], N in {10, 20, 50}, where the single-shooting amplification
 exp(L (rho A c0^2 / EI)^(1/4) / sqrt 2) < 1e6 (float32: < 1e4) and the tendon compression
 sum(tau) L^2 / EI < 20 (Beck's flutter load of a follower-loaded cantilever).
 Beyond it (measured, failures flagged): zeta in [0, 0.01]; dt down to 1e-5 s (amplification > 1e6).
+Displacement-control envelope: the statics envelope's rods and loads, every tendon under
+displacement control with a wire compliance c = chi r_off^2 / EI (chi in [0.01, 1], log-uniform)
+and a pretension of up to 20% of the half-turn tension pi EI / (r_off L), commanded with the
+displacements that give the sampled tensions (from a tension-control solve of the same rods),
+the unused tendons released further by up to r_off theta (they go slack), where the tendons'
+compression sum(tau) L^2 / EI < pi^2 / 4 (the Euler load of a cantilever: the statics envelope's
+tensions reach 800 times it; a tendon's pull follows the rod, so tension control does not
+buckle, but a length constraint admits other equilibria beyond it); every rod from the
+straight-rod start, N = 20: converged, the shape of the tension-control solve (tip within 1e-8 m),
+released tendons slack.
+Beyond it (measured, failures flagged): compression from pi^2 / 4 to ~800 x.
 
     python experiments/envelope.py [--smoke] [--samples 100000] [--out results/envelope.json]
 """
@@ -89,6 +100,61 @@ def run_statics(samples: int, rng, precision: str, model: str, nodes: int, regio
                 failed=int((~ok).sum()), reasons=reasons, converged_all_finite=bool(finite),
                 precision_limited=int(((sol.status & 32) != 0).sum()), seconds=wall,
                 failed_theta=s["theta"][~ok].tolist()[:20])
+
+
+EULER = np.pi**2 / 4  # compression sum(tau) L^2 / EI bounding the displacement-control envelope
+
+
+def run_displacement(samples: int, rng, nodes: int = 20) -> dict:
+    """The displacement-control envelope (module docstring): convergence from the straight-rod
+    start, slack where released, and the tensions of the matching tension-control solve."""
+    from tdcr_warp.statics import reference_lengths
+
+    s = sample_envelope(8 * samples, rng, **ENVELOPE)  # then ``samples`` inside, samples / 4 beyond
+    EI = s["robot"]["youngs_modulus"] * np.pi * s["robot"]["radius"] ** 4 / 4
+    load = s["tensions"].sum(axis=1) * s["robot"]["length"] ** 2 / EI
+    keep = np.r_[np.flatnonzero(load < EULER)[:samples], np.flatnonzero(load >= EULER)[:samples // 4]]
+    s = {k: v[keep] for k, v in s.items() if k != "robot"} | {"robot": {
+        k: ([tw.Tendon(offset=t.offset[keep]) for t in v] if k == "tendons" else v[keep])
+        for k, v in s["robot"].items()}}
+    samples = len(keep)
+    rb = s["robot"]
+    EI = EI[keep]
+    off = np.linalg.norm(rb["tendons"][0].offset, axis=1)
+    chi = np.exp(rng.uniform(np.log(0.01), np.log(1.0), (samples, K_MAX)))
+    comp = chi * (off**2 / EI)[:, None]
+    pre = rng.uniform(0, 0.2, (samples, K_MAX)) * (np.pi * EI / (off * rb["length"]))[:, None]
+
+    def robot(control):
+        tendons = [tw.Tendon(offset=t.offset, compliance=comp[:, k], pretension=pre[:, k], control=control)
+                   for k, t in enumerate(rb["tendons"])]
+        return tw.Robot(**(rb | dict(tendons=tendons)))
+
+    tau = s["tensions"]
+    forward = tw.solve_static(robot("tension"), tau, nodes=nodes, tendon_states=True)
+    disp = robot("displacement")
+    q = reference_lengths(disp, nodes=nodes) - forward.tendon_free_length
+    released = tau == 0
+    q = np.where(released, q - rng.uniform(0, 1, tau.shape) * (off * s["theta"])[:, None], q)
+    t0 = time.perf_counter()
+    sol = tw.solve_static(disp, np.zeros_like(tau), displacements=q, nodes=nodes)
+    wall = time.perf_counter() - t0
+    ok = sol.converged & forward.converged
+    taut = ~released
+    rel = np.abs(sol.tendon_tension_base - tau) / np.maximum(tau, 1e-300)
+    match = ok & (np.abs(sol.tip_position - forward.tip_position).max(axis=1) < 1e-8)
+    slack_ok = ok & np.where(released, sol.slack, True).all(axis=1)
+    compression = tau.sum(axis=1) * rb["length"] ** 2 / EI
+    out = {}
+    for name, sel in (("envelope", compression < EULER), ("beyond: compression to 800", compression >= EULER)):
+        reasons = {}
+        for reason in np.array(sol.failure_reasons())[sel & ~sol.converged]:
+            reasons[str(reason)] = reasons.get(str(reason), 0) + 1
+        out[name] = dict(samples=int(sel.sum()), converged=float(sol.converged[sel].mean()),
+                         same_shape=float(match[sel].mean()), released_slack=float(slack_ok[sel].mean()),
+                         reasons=reasons, mean_iterations=float(sol.iterations[sel].mean()),
+                         worst_tension_error=float(np.where((ok & sel)[:, None] & taut, rel, 0).max()))
+    return dict(nodes=nodes, seconds=wall, reference_converged=float(forward.converged.mean()), **out)
 
 
 DYN_ENVELOPE = dict(zeta=(0.01, 1.0), dt=(1e-3, 1.0), amp_max=1e6)
@@ -179,6 +245,12 @@ def main(argv=None) -> int:
         rows.append(row)
         print(f"statics {name:30s} {precision} {model:8s} N={nodes:4d}: {row['converged']:.4%} of {samples} converged "
               f"({row['failed']} failed: {row['reasons']}), {samples / row['seconds']:,.0f} rods/s")
+    disp = run_displacement(max(64, n // 10), rng)
+    for name in ("envelope", "beyond: compression to 800"):
+        d = disp[name]
+        print(f"displacement control {name}, N=20: {d['converged']:.4%} of {d['samples']} converged from the straight "
+              f"start ({d['reasons']}); the tension-control shape (1e-8 m) in {d['same_shape']:.4%}, released "
+              f"tendons slack in {d['released_slack']:.4%}; {d['mean_iterations']:.1f} iterations on average")
     m = 8 if args.smoke else args.dynamic_samples
     dyn = []
     # (name, region, nodes, precision, share of the dynamic sample count)
@@ -192,7 +264,7 @@ def main(argv=None) -> int:
         dyn.append(row)
         print(f"dynamics {name:20s} {precision} N={nodes:3d}: {row['converged']} of {row['inside']} converged every "
               f"step ({row['rate']:.3%}; {row['skipped_outside']} sampled outside), failures: {row['reasons']}")
-    write_report(args.out, {"meta": metadata(args.device), "statics": rows, "dynamics": dyn})
+    write_report(args.out, {"meta": metadata(args.device), "statics": rows, "displacement": disp, "dynamics": dyn})
     return 0
 
 

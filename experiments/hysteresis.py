@@ -2,9 +2,10 @@
 each step from the last: stick and slip along the tendon tracked by tdcr_warp.solve_static's
 ``history``), with mu = 0 beside it: tip position and motor tension against motor
 displacement, and the energy friction dissipated over the cycle (the loop integral of
-tau(0) dq). Writes docs/figures/hysteresis.png and results/hysteresis.csv (pandas-readable).
+tau(0) dq). Writes docs/figures/hysteresis.png, results/hysteresis.json and results/hysteresis.csv
+(pandas-readable: one row per step and mu).
 
-    python experiments/hysteresis.py [--steps 20] [--mu 0.3] [--qmax 0.004]
+    python experiments/hysteresis.py [--steps 20] [--mu 0.3] [--qmax 0.004] [--smoke] [--out results/hysteresis.json]
 """
 
 from __future__ import annotations
@@ -50,13 +51,17 @@ def main(argv=None) -> int:
     ap.add_argument("--qmax", type=float, default=0.004, help="largest motor displacement [m]")
     ap.add_argument("--nodes", type=int, default=40)
     ap.add_argument("--no-figure", action="store_true")
+    ap.add_argument("--smoke", action="store_true", help="tiny sizes, no figure or CSV (for the test suite)")
+    ap.add_argument("--out", default=str(ROOT / "results" / "hysteresis.json"))
     args = ap.parse_args(argv)
+    if args.smoke:
+        args.steps, args.nodes, args.no_figure = 2, 10, True
     q = np.r_[np.linspace(0.0, args.qmax, args.steps + 1), np.linspace(args.qmax, 0.0, args.steps + 1)[1:]]
     t0 = time.perf_counter()
     runs = {mu: cycle(mu, q, args.nodes) for mu in (0.0, args.mu)}
     wall = time.perf_counter() - t0
-    out_csv = ROOT / "results" / "hysteresis.csv"
-    out_csv.parent.mkdir(exist_ok=True)
+    out_csv = Path(args.out).with_suffix(".csv")
+    out_csv.parent.mkdir(parents=True, exist_ok=True)
     with open(out_csv, "w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(["mu", "step", "q_m", "tip_x_m", "tip_y_m", "tip_z_m", "tension_motor_N", "tension_tip_N"])
@@ -70,7 +75,7 @@ def main(argv=None) -> int:
     print(f"{2 * len(q)} solves in {wall:.2f} s")
     report = {"meta": metadata("cpu"), "q_m": q.tolist(), "wall_s": wall,
               "dissipated_J": {str(mu): r[4] for mu, r in runs.items()}}
-    write_report(ROOT / "results" / "hysteresis.json", report)
+    write_report(args.out, report)
     if not args.no_figure:
         import matplotlib
         matplotlib.use("Agg")

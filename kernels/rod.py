@@ -45,6 +45,7 @@ class Features(NamedTuple):
     friction: bool = False  # capstan friction: tensions vary along s
     tendons: int = 0  # K > 0: per-tendon states along s (turning, path length, unstretched length)
     displaced: int = 0  # displacement-controlled tendons: one shooting unknown and residual each
+    spline: bool = False  # tendons routed through points (cubic segments in Model.route)
 
 
 ALL = Features()
@@ -70,6 +71,7 @@ def make_structs(dtype, dynamic: bool):
         pforce: wp.array3d(dtype=dtype)  # (1|B, P, 3) point forces [N]
         pnode: wp.array2d(dtype=int)  # (1|B, P) node of each point force
         tmode: wp.array2d(dtype=int)  # (1|B, K) shooting unknown 6 + j of a displacement-controlled tendon, or -1
+        route: wp.array4d(dtype=dtype)  # (1, K, S, 9) spline segments: s_i, then x and y cubic coefficients
         n_tendons: int
         n_points: int
 
@@ -171,6 +173,21 @@ def make_rod_funcs(dtype, model: str, dynamic: bool, rod: str = "cosserat", feat
         r = vec3(md.tendon[it, k, T_X0] + dx * s + ra * c, md.tendon[it, k, T_Y0] + dy * s + ra * sn, zero)
         dr = vec3(dx - ra * w * sn, dy + ra * w * c, zero)
         ddr = vec3(-ra * w * w * c, -ra * w * w * sn, zero)
+        if wp.static(features.spline):  # a tendon through points: its cubic segment at s (others add zeros)
+            seg = int(0)
+            for j in range(md.route.shape[2]):
+                if s >= md.route[0, k, j, 0]:
+                    seg = j
+            t = s - md.route[0, k, seg, 0]
+            for ax in range(2):
+                c0 = 1 + 4 * ax
+                a0 = md.route[0, k, seg, c0]
+                a1 = md.route[0, k, seg, c0 + 1]
+                a2 = md.route[0, k, seg, c0 + 2]
+                a3 = md.route[0, k, seg, c0 + 3]
+                r[ax] = r[ax] + a0 + t * (a1 + t * (a2 + t * a3))
+                dr[ax] = dr[ax] + a1 + t * (dtype(2.0) * a2 + dtype(3.0) * t * a3)
+                ddr[ax] = ddr[ax] + dtype(2.0) * a2 + dtype(6.0) * t * a3
         return r, dr, ddr
 
     @wp.func
@@ -631,5 +648,6 @@ def make_rod_funcs(dtype, model: str, dynamic: bool, rod: str = "cosserat", feat
         vec3=vec3, mat33=mat33, kvec=kvec, evec=evec, uvec=uvec, Model=Model, Control=Control, Step=Step, row=row,
         rvec=rvec, rhs=rhs, node_jumps=node_jumps, node_busy=node_busy, orthonormalize=orthonormalize,
         base_tensions=base_tensions, tensions=tensions, term_node=term_node, length_residuals=length_residuals,
+        tendon_route=tendon_route,
         tstate=tstate, K=K,
     )

@@ -56,7 +56,7 @@ def make_shooting_kernels(dtype, integrator: str, model: str, dynamic: bool = Fa
     key = (f"{wp.types.type_repr(dtype)}_{integrator}_{model}_{'dyn' if dynamic else 'static'}_{rod}_"
            + "".join(str(int(f)) for f in features[:4]) + ("" if features.kinks else "_nokink")
            + (f"_k{features.tendons}" if features.tendons else "") + ("_mu" if features.friction else "")
-           + (f"_d{features.displaced}" if features.displaced else ""))
+           + (f"_d{features.displaced}" if features.displaced else "") + ("_spline" if features.spline else ""))
     modules = {grp: f"tdcr_warp_{grp}_{key}" for grp in ("fused", "probes", "evaluate")}
     rk4 = integrator == "rk4"
     midpoint = integrator == "midpoint"

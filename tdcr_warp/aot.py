@@ -58,8 +58,8 @@ def all_variants() -> list[Variant]:
 def covering_variants() -> list[Variant]:
     """Every precision, integrator, tendon model, rod model, statics and dynamics, both extreme
     feature sets, and tendon states (friction, displacement unknowns) with either tendon model,
-    each at least once (6 variants)."""
-    states = dict(friction=True, tendons=4, displaced=2)
+    each at least once (6 variants; spline routes in the first with tendon states)."""
+    states = dict(friction=True, tendons=4, displaced=2, spline=True)
     return [Variant("float64", "rk4", "coupled", "cosserat", False, ALL),
             Variant("float32", "midpoint", "point", "kirchhoff", True, ALL),
             Variant("float64", "euler", "coupled", "kirchhoff", True, NONE),

@@ -23,23 +23,28 @@ from .robot import InputError, Robot
 PRECISIONS = {"float64": (wp.float64, np.float64), "float32": (wp.float32, np.float32)}
 
 
-def make_grid(length: np.ndarray, tendon_len: np.ndarray, point_s: np.ndarray, nodes: int):
-    """Arc-length nodes holding every tendon termination and point load.
+def make_grid(length: np.ndarray, tendon_len: np.ndarray, point_s: np.ndarray, nodes: int,
+              knots: np.ndarray | None = None):
+    """Arc-length nodes holding every tendon termination and point load, and the ``knots``
+    (1, Q) of tendons routed through points (where their r'' has a kink: RK4 keeps its order
+    only if no interval straddles one).
 
     Returns grid (Bg, N+1), term_node (Bg, K), point_node (Bg, P); Bg is 1 unless one of the
     inputs varies per rod. Intervals are shared out over the segments in proportion to
     their length (at least one each).
     """
     K, P = tendon_len.shape[1], point_s.shape[1]
+    knots = np.zeros((1, 0)) if knots is None else knots
     bg = max(length.shape[0], tendon_len.shape[0], point_s.shape[0])
     keys = np.concatenate([np.broadcast_to(length[:, None], (bg, 1)),
                            np.broadcast_to(tendon_len, (bg, K)),
-                           np.broadcast_to(point_s, (bg, P))], axis=1)
+                           np.broadcast_to(point_s, (bg, P)),
+                           np.broadcast_to(knots, (bg, knots.shape[1]))], axis=1)
     uniq, inverse = np.unique(keys, axis=0, return_inverse=True)
     rows = [_grid_row(row[0], row[1:], nodes) for row in uniq]
     grid = np.stack([r[0] for r in rows])[inverse.ravel()]
     marks = np.stack([r[1] for r in rows])[inverse.ravel()]
-    return grid, marks[:, :K].astype(np.int32), marks[:, K:].astype(np.int32)
+    return grid, marks[:, :K].astype(np.int32), marks[:, K:K + P].astype(np.int32)
 
 
 def _grid_row(L: float, breaks: np.ndarray, nodes: int):
@@ -49,7 +54,7 @@ def _grid_row(L: float, breaks: np.ndarray, nodes: int):
     pts = pts[pts > tol]
     if len(pts) > nodes:
         raise InputError(f"solver nodes = {nodes} is fewer than the {len(pts)} segments set by "
-                         "tendon terminations and point loads")
+                         "tendon terminations, point loads and the knots of tendons routed through points")
     seg = np.diff(np.concatenate([[0.0], pts]))
     ideal = nodes * seg / L
     count = np.maximum(1, np.floor(ideal)).astype(int)
@@ -130,12 +135,13 @@ def scene_features(robot: Robot, tendon: np.ndarray, specialize: bool, kink_load
     friction = mode == "solve" and bool(np.any(tendon[..., layout.T_MU] > 0))
     displaced = len(robot.displaced) if mode == "solve" else 0
     states = robot.n_tendons if (friction or displaced or lengths or mode == "reference") else 0
-    tendons = dict(kinks=kink_loads, friction=friction, tendons=states, displaced=displaced)
+    spline = any(t.routing == "points" for t in robot.tendons)
+    tendons = dict(kinks=kink_loads, friction=friction, tendons=states, displaced=displaced, spline=spline)
     if not specialize:
         return ALL._replace(**tendons)
     return Features(gravity=bool(np.any(robot.gravity != 0) and np.any(robot.density > 0)),
                     point_loads=len(robot.point_forces) > 0,
-                    helix=bool(np.any(tendon[..., [layout.T_A, layout.T_DX, layout.T_DY]] != 0)),
+                    helix=spline or bool(np.any(tendon[..., [layout.T_A, layout.T_DX, layout.T_DY]] != 0)),
                     drag=bool(np.any(robot.drag != 0)), **tendons)
 
 
@@ -144,7 +150,8 @@ class Tables:
     """The packed host tables of one robot at one node count (leading dimension 1 or B).
 
     rod, dyn, tendon, pforce: see kernels/layout.py; grid (1|B, N+1) [m]; term_node (1|B, K)
-    and pnode (1|B, P): node indices; tmode (1, K): the shooting unknown 6 + j of each
+    and pnode (1|B, P): node indices; route (1, K, S, 9): the spline segments of tendons routed
+    through points (Robot.route_table); tmode (1, K): the shooting unknown 6 + j of each
     displacement-controlled tendon (-1: tension control); features: the physics the robot
     contains; straight: its Newton start. Derived from the rod table: ``scales`` and ``stiffness``.
     """
@@ -157,6 +164,7 @@ class Tables:
     pforce: np.ndarray
     pnode: np.ndarray
     tmode: np.ndarray
+    route: np.ndarray
     features: Features
     straight: StraightRod
 
@@ -165,14 +173,17 @@ class Tables:
            mode: str = "solve", lengths: bool = False) -> "Tables":
         tendon_len = robot.tendon_lengths() if robot.tendons else np.zeros((1, 0))
         point_s, point_f = robot.pack_point_forces()
-        grid, term_node, point_node = make_grid(robot.length, tendon_len, point_s, nodes)
+        knots = [t.points[1:-1, 0] for t in robot.tendons if t.routing == "points"]
+        grid, term_node, point_node = make_grid(robot.length, tendon_len, point_s, nodes,
+                                                np.concatenate(knots)[None] if knots else None)
         tendon = pack_tendons(robot)
         features = scene_features(robot, tendon, specialize, kink_loads, mode, lengths)
         tmode = np.full((1, robot.n_tendons), -1, dtype=np.int32)
         if features.displaced:
             tmode[0, list(robot.displaced)] = np.arange(features.displaced)
         return cls(rod=pack_rod(robot), dyn=pack_dynamics(robot), tendon=tendon, grid=grid, term_node=term_node,
-                   pforce=point_f, pnode=point_node, tmode=tmode, features=features, straight=StraightRod.of(robot))
+                   pforce=point_f, pnode=point_node, tmode=tmode, route=robot.route_table(), features=features,
+                   straight=StraightRod.of(robot))
 
     @property
     def nu(self) -> int:
@@ -302,6 +313,7 @@ def put_model(kern, dev: Device, tables: Tables, lo: int, hi: int):
     md.pforce = dev.array(_pad(tables.rows("pforce", lo, hi), (1, 3)))
     md.pnode = dev.array(_pad(tables.rows("pnode", lo, hi), (1,)), np.int32)
     md.tmode = dev.array(_pad(tables.tmode, (1,)), np.int32)
+    md.route = dev.array(tables.route if tables.route.shape[1] else np.zeros((1, 1, 1, 9)))
     md.n_tendons = tables.tendon.shape[1]
     md.n_points = tables.pforce.shape[1]
     return md

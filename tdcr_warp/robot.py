@@ -66,7 +66,33 @@ def _batch(fields: dict[str, np.ndarray]) -> int:
 
 
 CONTROLS = ("tension", "displacement")
-ROUTINGS = ("straight", "helix", "linear")
+ROUTINGS = ("straight", "helix", "linear", "points")
+
+
+def cubic_spline(s: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Coefficients (M-1, 4) of the not-a-knot cubic spline through (s_i, y_i): on [s_i, s_i+1],
+    y = a + b t + c t^2 + d t^3 with t = s - s_i; y, y', y'' continuous, and the third
+    derivative too at the second and the last-but-one knot (the end slopes, which set the pull
+    of a tendon where it ends, are then as accurate as the inside; a natural spline's y'' = 0
+    at the ends costs O(h) there). Two points: a line; three: a parabola."""
+    h = np.diff(s)
+    M = len(s)
+    if M == 2:
+        c = np.zeros(2)
+    elif M == 3:
+        c = np.full(3, ((y[2] - y[1]) / h[1] - (y[1] - y[0]) / h[0]) / (h[0] + h[1]))
+    else:
+        A = np.zeros((M, M))
+        rhs = np.zeros(M)
+        A[0, :3] = -h[1], h[0] + h[1], -h[0]
+        A[-1, -3:] = -h[-1], h[-2] + h[-1], -h[-2]
+        for i in range(1, M - 1):
+            A[i, i - 1], A[i, i], A[i, i + 1] = h[i - 1], 2.0 * (h[i - 1] + h[i]), h[i]
+            rhs[i] = 3.0 * ((y[i + 1] - y[i]) / h[i] - (y[i] - y[i - 1]) / h[i - 1])
+        c = np.linalg.solve(A, rhs)
+    b = (y[1:] - y[:-1]) / h - h * (2.0 * c[:-1] + c[1:]) / 3.0
+    d = (c[1:] - c[:-1]) / (3.0 * h)
+    return np.stack([y[:-1], b, c[:-1], d], axis=1)
 
 
 @dataclass(frozen=True)
@@ -77,9 +103,11 @@ class Tendon:
 
     offset: (2,) or (B, 2) [m]; helix_radius, turns, phase [m, -, rad]: float or (B,);
     length: termination arc length [m] (None: the rod length), float or (B,).
-    ``routing`` is "straight" (constant offset), "helix" (a rotating offset) or "linear" (the
+    ``routing`` is "straight" (constant offset), "helix" (a rotating offset), "linear" (the
     offset moves in a straight line from ``offset`` at the base to ``offset_end`` at the
-    termination: converging or diverging routes).
+    termination: converging or diverging routes) or "points": a general path through
+    ``points`` [(s, x, y), ...] [m] (s from 0 to the termination, increasing), a not-a-knot
+    cubic spline in x(s) and y(s) (continuous r, r', r'', which the coupled model needs).
 
     The tendon itself: ``control`` "tension" (commanded in N) or "displacement" (commanded as
     a motor displacement q in m, pull positive: the motor takes in q of unstretched tendon,
@@ -99,6 +127,7 @@ class Tendon:
     compliance: object = 0.0
     pretension: object = 0.0
     friction: object = 0.0
+    points: object = None
 
     def __post_init__(self):
         if self.routing not in ROUTINGS:
@@ -124,6 +153,38 @@ class Tendon:
             _check("tendon helix_radius", self.helix_radius, self.helix_radius >= 0, ">= 0")
         else:
             _check(f"tendon helix_radius ({self.routing} routing)", self.helix_radius, self.helix_radius == 0, "0")
+        if self.routing == "points":
+            pts = self.points
+            try:
+                pts = np.array(pts, dtype=np.float64)
+            except (TypeError, ValueError):
+                raise InputError(f"tendon points: expected a list of (s, x, y) [m], got {self.points!r}") from None
+            if pts.ndim != 2 or pts.shape[1] != 3 or pts.shape[0] < 2:
+                raise InputError(f"tendon points: expected two or more (s, x, y) rows, got shape {pts.shape}")
+            if not np.isfinite(pts).all():
+                raise InputError(f"tendon points: non-finite value in {pts.tolist()}")
+            if pts[0, 0] != 0.0:
+                raise InputError(f"tendon points: the first s must be 0 (the base), got {float(pts[0, 0])!r}")
+            steps = np.diff(pts[:, 0])
+            if (steps <= 0).any():
+                i = int(np.argmax(steps <= 0))
+                raise InputError(f"tendon points must be increasing in s: s = {float(pts[i + 1, 0])!r} follows "
+                                 f"{float(pts[i, 0])!r}")
+            if self.length is not None and np.any(np.abs(self.length - pts[-1, 0]) > 1e-12 * pts[-1, 0]):
+                raise InputError(f"tendon points end at s = {float(pts[-1, 0])!r}, the tendon's length is "
+                                 f"{self.length}")
+            pts.flags.writeable = False
+            object.__setattr__(self, "points", pts)
+            if np.any(self.offset != 0):
+                raise InputError("tendon offset must be (0, 0) with routing = 'points' (the points give the path)")
+        elif self.points is not None:
+            raise InputError(f"tendon points are only used with routing = 'points', got routing = {self.routing!r}")
+
+    def spline(self) -> np.ndarray:
+        """(M-1, 9) per segment: s_i and the cubic coefficients of x and y (``cubic_spline``)."""
+        s = self.points[:, 0]
+        return np.concatenate([s[:-1, None], cubic_spline(s, self.points[:, 1]),
+                               cubic_spline(s, self.points[:, 2])], axis=1)
 
 
 @dataclass(frozen=True)
@@ -163,6 +224,7 @@ class Robot:
     damping_shear: object = (0.0, 0.0, 0.0)
     damping_bending: object = (0.0, 0.0, 0.0)
     drag: object = (0.0, 0.0, 0.0)
+    disk_radius: object = None
     batch_size: int = field(init=False)
 
     def __post_init__(self):
@@ -190,7 +252,7 @@ class Robot:
         fields = {n: getattr(self, n) for n in scalars + vectors}
         for i, t in enumerate(self.tendons):
             for n in ("offset", "helix_radius", "turns", "phase", "length", "offset_end", "compliance",
-                      "pretension", "friction"):
+                      "pretension", "friction"):  # (points are shared by the batch)
                 if getattr(t, n) is not None:
                     fields[f"tendons[{i}].{n}"] = getattr(t, n)
         for j, pf in enumerate(self.point_forces):
@@ -216,6 +278,23 @@ class Robot:
         for j, pf in enumerate(self.point_forces):
             ok = np.broadcast_to(pf.s <= L * (1 + 1e-12), np.broadcast_shapes(pf.s.shape, L.shape))
             _check(f"point_forces[{j}].s", np.broadcast_to(pf.s, ok.shape), ok, "<= the rod length")
+        for i, t in enumerate(self.tendons):
+            if t.routing == "points" and t.length is None and np.any(np.abs(t.points[-1, 0] - L) > 1e-12 * L):
+                raise InputError(f"tendons[{i}].points end at s = {float(t.points[-1, 0])!r}, the tendon runs to "
+                                 f"the tip at {float(L.max())!r} (set its length, or end the points there)")
+        if self.disk_radius is not None:
+            object.__setattr__(self, "disk_radius", _as_field("disk_radius", self.disk_radius, ()))
+            _check("disk_radius", self.disk_radius, self.disk_radius > 0, "positive")
+            if self.tendons:
+                frac = np.linspace(0.0, 1.0, 129)
+                lengths = self.tendon_lengths()
+                rad = np.stack([np.linalg.norm(self.tendon_routing(lengths * f)[0], axis=-1) for f in frac])
+                excess = rad - np.broadcast_to(self.disk_radius, lengths.shape)[None] * (1 + 1e-12)
+                if (excess > 0).any():
+                    j, b, k = np.unravel_index(np.argmax(excess), excess.shape)  # the worst sample
+                    raise InputError(f"tendons[{k}] routing leaves the disk: |r| = {rad[j, b, k]:.6g} m at s = "
+                                     f"{float(lengths[b, k] * frac[j]):.6g} m (rod {b}), beyond disk_radius = "
+                                     f"{float(np.broadcast_to(self.disk_radius, (b + 1,))[b])!r} m")
 
     @property
     def n_tendons(self) -> int:
@@ -269,6 +348,18 @@ class Robot:
         """The tendons under displacement control, in order (each adds one shooting unknown)."""
         return tuple(k for k, t in enumerate(self.tendons) if t.control == "displacement")
 
+    def route_table(self) -> np.ndarray:
+        """(1, K, S, 9) the spline segments of "points" tendons (zeros elsewhere and beyond a
+        tendon's own segments: they add nothing), S the most segments of any tendon."""
+        segs = [t.spline() if t.routing == "points" else np.zeros((0, 9)) for t in self.tendons]
+        S = max([len(g) for g in segs] + [1])
+        out = np.zeros((1, len(segs), S, 9))
+        for k, g in enumerate(segs):
+            out[0, k, :len(g)] = g
+            if len(g):
+                out[0, k, len(g):, 0] = np.inf  # never selected
+        return out
+
     def tendon_routing(self, s) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Body-frame routing of every tendon at arc length s [m] (a number, or (B,) or (B, K)):
         r(s) and its first two arc-length derivatives, each (1 or B, K, 3)."""
@@ -283,6 +374,17 @@ class Robot:
         r = np.stack([x0 + dx * s + a * c, y0 + dy * s + a * sn, z], axis=-1)
         dr = np.stack([dx - a * w * sn, dy + a * w * c, z], axis=-1)
         ddr = np.stack([-a * w * w * c, -a * w * w * sn, z], axis=-1)
+        for k, t in enumerate(self.tendons):
+            if t.routing == "points":
+                g = t.spline()
+                sk = np.broadcast_to(s, r.shape[:-1])[..., k]
+                i = np.clip(np.searchsorted(g[:, 0], sk, side="right") - 1, 0, len(g) - 1)
+                u = sk - g[i, 0]
+                for c0, out in ((1, 0), (5, 1)):
+                    A, Bc, C, D = (g[i, c0 + j] for j in range(4))
+                    r[..., k, out] = A + u * (Bc + u * (C + u * D))
+                    dr[..., k, out] = Bc + u * (2 * C + 3 * u * D)
+                    ddr[..., k, out] = 2 * C + 6 * u * D
         return r, dr, ddr
 
     def pack_point_forces(self) -> tuple[np.ndarray, np.ndarray]:

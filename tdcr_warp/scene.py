@@ -1,10 +1,10 @@
 """TOML scenes: one file describes a batch of robots, their actuation and the solver.
 
 Tables and keys (SI units; see README "Scene format"):
-  [robot]      length, youngs_modulus, poisson_ratio, radius, density, precurvature
-  [[tendons]]  offset, routing ("straight" | "helix" | "linear"), radius, turns, phase, length,
-               offset_end (linear), control ("tension" | "displacement"), compliance, pretension,
-               friction
+  [robot]      length, youngs_modulus, poisson_ratio, radius, density, precurvature, disk_radius
+  [[tendons]]  offset, routing ("straight" | "helix" | "linear" | "points"), radius, turns, phase,
+               length, offset_end (linear), points (points: [[s, x, y], ...]), control ("tension" |
+               "displacement"), compliance, pretension, friction
   [loads]      gravity, tip_force, tip_moment, [[loads.point_forces]] (s, force)
   [actuation]  tensions (B rows of K), displacements (B rows of K, m), slip (B rows of K, +1 | -1),
                [[actuation.steps]] (start, tensions) for dynamics
@@ -31,9 +31,9 @@ from .types import StaticOptions
 
 __all__ = ["DynamicsSpec", "Scene", "load_scene", "scene_from_dict"]
 
-ROBOT_KEYS = {"length", "youngs_modulus", "poisson_ratio", "radius", "density", "precurvature"}
+ROBOT_KEYS = {"length", "youngs_modulus", "poisson_ratio", "radius", "density", "precurvature", "disk_radius"}
 TENDON_KEYS = {"offset", "routing", "radius", "turns", "phase", "length", "offset_end", "control", "compliance",
-               "pretension", "friction"}
+               "pretension", "friction", "points"}
 LOAD_KEYS = {"gravity", "tip_force", "tip_moment", "point_forces"}
 POINT_KEYS = {"s", "force"}
 ACTUATION_KEYS = {"tensions", "displacements", "slip", "steps"}
@@ -161,6 +161,8 @@ def scene_from_dict(data: dict) -> Scene:
                                                             "radius", "density")}
     if "precurvature" in rob:
         robot_kw["precurvature"] = _numbers(rob["precurvature"], "[robot].precurvature")
+    if "disk_radius" in rob:
+        robot_kw["disk_radius"] = _numbers(rob["disk_radius"], "[robot].disk_radius")
 
     tendons = []
     raw_tendons = data.get("tendons", [])
@@ -172,13 +174,17 @@ def scene_from_dict(data: dict) -> Scene:
             raise InputError(f"{where} must be a table, got {t!r}")
         _no_unknown(t, TENDON_KEYS, where)
         routing = t.get("routing", "straight")
-        if routing not in ("straight", "helix", "linear"):
-            raise InputError(f"{where}.routing must be 'straight', 'helix' or 'linear', got {routing!r}")
+        if routing not in ("straight", "helix", "linear", "points"):
+            raise InputError(f"{where}.routing must be 'straight', 'helix', 'linear' or 'points', got {routing!r}")
         kw = {"routing": routing}
         if "offset" in t:
             kw["offset"] = _numbers(t["offset"], f"{where}.offset")
-        elif routing != "helix":
+        elif routing in ("straight", "linear"):
             raise InputError(f"missing key 'offset' in {where} ({routing} routing)")
+        if routing == "points":
+            kw["points"] = _numbers(_required(t, "points", where), f"{where}.points")
+        elif "points" in t:
+            raise InputError(f"{where}.points is only for routing = \"points\"")
         if routing == "linear":
             kw["offset_end"] = _numbers(_required(t, "offset_end", where), f"{where}.offset_end")
         elif "offset_end" in t:

@@ -342,16 +342,17 @@ SLACK_PASSES = 8
 
 def settle_slack(sh: Shooting, taut: np.ndarray, disp: np.ndarray, j_of: np.ndarray, newton: dict) -> None:
     """The complementarity of displacement control, per rod: a taut tendon solved to a negative
-    tension goes slack, a slack one whose path needs more tendon than it has goes taut, and the
-    rod is solved again from where it stopped, until the set settles (``SLACK_PASSES``; then
-    flagged UNSETTLED). Each solve is smooth in its unknowns; the unknown of a tendon that
-    switches is near zero either way. Iterations and integrations add up over the passes."""
+    tension goes slack (also where the solve failed: a wrong taut set can keep Newton from
+    converging), a slack one whose path needs more tendon than it has goes taut, and the rod is
+    solved again from where it stopped, until the set settles (``SLACK_PASSES``; then flagged
+    UNSETTLED). Each solve is smooth in its unknowns; the unknown of a tendon that switches is
+    near zero either way. Iterations and integrations add up over the passes."""
     iters = sh.newton.iters.numpy().astype(np.int64)
     shots = sh.newton.n_shoot.numpy().astype(np.int64)
     for _ in range(SLACK_PASSES):
         z = sh.newton.x.numpy()[:, j_of]
         ok = sh.converged()
-        flip = ok[:, None] & np.where(taut[:, disp], z < 0, z > 0)
+        flip = np.where(taut[:, disp], z < 0, ok[:, None] & (z > 0))
         rods = flip.any(axis=1)
         if not rods.any():
             break

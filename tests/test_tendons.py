@@ -361,3 +361,41 @@ def test_friction_in_dynamics_follows_the_sliding_direction():
     assert release["slip"][0, 0] < -0.99 and release["tension_end"][0, 0] > release["tension_base"][0, 0] * 1.01
     held = run(lambda i: 0.00075, 200)
     assert abs(held["slip"][0, 0]) < 1e-3
+
+
+def test_points_routing_reproduces_linear_and_helical_routes():
+    """A route through points is a not-a-knot cubic spline: through collinear points it is the
+    straight line of a linear route (the same answer to round-off); through samples of a helix
+    it converges to the helical route as the points get denser (interpolation error O(h^4);
+    the knots are grid nodes, so RK4 keeps its order)."""
+    lin = tw.Tendon(offset=(0.0, OFF), routing="linear", offset_end=(0.003, 0.002))
+    pts = tw.Tendon(routing="points", points=[(0.0, 0.0, OFF), (0.2, 0.0012, 0.0068), (0.5, 0.003, 0.002)])
+    a = tw.solve_static(robot([lin]), [3.0], nodes=40)
+    b = tw.solve_static(robot([pts]), [3.0], nodes=40)
+    assert np.abs(a.tip_position - b.tip_position).max() < 1e-14
+    helix = tw.solve_static(robot([tw.Tendon(routing="helix", helix_radius=OFF, turns=0.5)]), [3.0], nodes=40)
+    errs = []
+    for m in (11, 21, 41):
+        s = np.linspace(0.0, L, m)
+        P = np.c_[s, OFF * np.cos(np.pi * s / L), OFF * np.sin(np.pi * s / L)]
+        sol = tw.solve_static(robot([tw.Tendon(routing="points", points=P)]), [3.0], nodes=40)
+        errs.append(np.abs(sol.tip_position - helix.tip_position).max())
+    assert errs[2] < 1e-8 and errs[0] / errs[1] > 8 and errs[1] / errs[2] > 8, errs
+
+
+@pytest.mark.parametrize("make, match", [
+    (lambda: tw.Tendon(routing="points", points=[(0.0, 0.0, 0.01), (0.3, 0.0, 0.01), (0.2, 0.0, 0.01)]),
+     r"tendon points must be increasing in s: s = 0.2 follows 0.3"),
+    (lambda: tw.Tendon(routing="points", points=[(0.1, 0.0, 0.01), (0.5, 0.0, 0.01)]), "the first s must be 0"),
+    (lambda: tw.Tendon(routing="points", points=[(0.0, 0.01)]), "expected two or more"),
+    (lambda: robot([tw.Tendon(routing="points", points=[(0.0, 0.0, 0.01), (0.4, 0.0, 0.01)])]),
+     "points end at s = 0.4, the tendon runs to the tip"),
+    (lambda: robot([tw.Tendon(routing="points", points=[(0.0, 0.0, 0.01), (0.25, 0.013, 0.0), (0.5, 0.0, 0.01)])],
+                   disk_radius=0.012), r"tendons\[0\] routing leaves the disk: \|r\| = 0.013\d* m at s = 0.2\d* m "
+                                       r"\(rod 0\), beyond disk_radius = 0.012 m"),
+    (lambda: robot([tw.Tendon(offset=(0.0, 0.01), routing="linear", offset_end=(0.0, 0.02))], disk_radius=0.015),
+     r"tendons\[0\] routing leaves the disk"),
+])
+def test_bad_routes_name_the_field(make, match):
+    with pytest.raises(tw.InputError, match=match):
+        make()
