@@ -268,41 +268,29 @@ class Simulator:
         """Current positions along s, (B, N+1, 3) [m] (frozen rods: their last trial)."""
         return np.concatenate([c.sh.nodes.p.numpy().astype(np.float64) for c in self.parts])
 
+    def _schedule(self, values, steps: int, name: str):
+        """The command of step i as a function: ``values`` (B, steps, K), (steps, K) or a callable."""
+        if callable(values):
+            return values
+        K = self.robot.n_tendons
+        sched = np.asarray(values, dtype=np.float64)
+        if sched.ndim == 2:
+            sched = np.broadcast_to(sched[None], (self.B,) + sched.shape)
+        if sched.shape != (self.B, steps, K):
+            raise InputError(f"{name}: expected shape ({self.B}, {steps}, {K}) or ({steps}, {K}), "
+                             f"got {np.shape(values)}")
+        return lambda i: sched[:, i]
+
     def simulate(self, schedule, steps: int, *, shapes_every: int = 0, progress: bool = False,
                  displacements=None) -> Trajectory:
         """Open loop: ``schedule`` is (B, steps, K) or (steps, K) [N], or a callable of the
         step index returning (B, K); ``displacements`` likewise [m] for the tendons under
         displacement control (None: they stay at the start's)."""
-        disp_at = None
-        if displacements is not None:
-            if callable(displacements):
-                disp_at = displacements
-            else:
-                dsched = np.asarray(displacements, dtype=np.float64)
-                if dsched.ndim == 2:
-                    dsched = np.broadcast_to(dsched[None], (self.B,) + dsched.shape)
-                if dsched.shape != (self.B, steps, self.robot.n_tendons):
-                    raise InputError(f"displacements: expected shape ({self.B}, {steps}, {self.robot.n_tendons}) "
-                                     f"or ({steps}, {self.robot.n_tendons}), got {np.shape(displacements)}")
-
-                def disp_at(i):
-                    return dsched[:, i]
         if not isinstance(steps, int) or steps < 1:
             raise InputError(f"steps must be a positive integer, got {steps!r}")
         K = self.robot.n_tendons
-        if callable(schedule):
-            get = schedule
-        else:
-            sched = np.asarray(schedule, dtype=np.float64)
-            if sched.ndim == 2:
-                sched = np.broadcast_to(sched[None], (self.B,) + sched.shape)
-            if sched.shape != (self.B, steps, K):
-                raise InputError(f"schedule: expected shape ({self.B}, {steps}, {K}) or ({steps}, {K}), "
-                                 f"got {np.shape(schedule)}")
-
-            def get(i):
-                return sched[:, i]
-
+        get = self._schedule(schedule, steps, "schedule")
+        disp_at = None if displacements is None else self._schedule(displacements, steps, "displacements")
         T, B = steps, self.B
         require_memory(T * B * (8.0 * (9 + K) + 9) + (T // shapes_every if shapes_every else 0) * B * 24.0
                        * self.grid.shape[1], f"steps = {T} for {B} rod(s): the trajectory")

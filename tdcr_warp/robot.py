@@ -402,17 +402,22 @@ def _stack_cols(cols: list[np.ndarray]) -> np.ndarray:
     return np.stack([np.broadcast_to(c, (b,)) for c in cols], axis=1)
 
 
+def _tendon_rows(value, name: str, K: int) -> np.ndarray:
+    """``value`` as a 2-D float64 array of K columns ((K,) is one row), or an InputError."""
+    try:
+        a = np.array(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InputError(f"{name}: expected a B x K array of numbers, got {value!r}") from None
+    if a.ndim == 1 and a.shape[0] == K:
+        a = a[None]
+    if a.ndim != 2 or a.shape[1] != K:
+        raise InputError(f"{name}: expected shape (B, {K}) for {K} tendons, got {a.shape}")
+    return a
+
+
 def check_tensions(robot: Robot, tensions, name: str = "tensions") -> np.ndarray:
     """Tensions as a (B, K) float64 array, each finite and >= 0, or an InputError."""
-    try:
-        tau = np.array(tensions, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise InputError(f"{name}: expected a B x K array of numbers, got {tensions!r}") from None
-    K = robot.n_tendons
-    if tau.ndim == 1 and tau.shape[0] == K:
-        tau = tau[None]
-    if tau.ndim != 2 or tau.shape[1] != K:
-        raise InputError(f"{name}: expected shape (B, {K}) for {K} tendons, got {tau.shape}")
+    tau = _tendon_rows(tensions, name, robot.n_tendons)
     if robot.batch_size > 1 and tau.shape[0] == 1:
         tau = np.repeat(tau, robot.batch_size, axis=0)
     if robot.batch_size > 1 and tau.shape[0] != robot.batch_size:
@@ -427,15 +432,10 @@ def check_tensions(robot: Robot, tensions, name: str = "tensions") -> np.ndarray
 
 def _rows(robot: Robot, value, name: str, B: int) -> np.ndarray:
     """A (B, K) float64 array of finite numbers from a (K,) or (B, K) input."""
-    try:
-        a = np.array(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise InputError(f"{name}: expected a B x K array of numbers, got {value!r}") from None
     K = robot.n_tendons
-    if a.ndim == 1 and a.shape[0] == K:
-        a = a[None]
-    if a.ndim != 2 or a.shape[1] != K or a.shape[0] not in (1, B):
-        raise InputError(f"{name}: expected shape ({K},) or ({B}, {K}) for {K} tendons and {B} rods, got {a.shape}")
+    a = _tendon_rows(value, name, K)
+    if a.shape[0] not in (1, B):
+        raise InputError(f"{name}: {a.shape[0]} rows for {B} rods")
     a = np.array(np.broadcast_to(a, (B, K)))
     bad = ~np.isfinite(a)
     if bad.any():

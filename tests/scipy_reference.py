@@ -687,6 +687,25 @@ def _scaled_shoot(mdl: _Model, x_guess, ivp_kw, Fc, Mc, root_method):
     return z * sx, rn, bool(np.isfinite(rn) and rn < 1e-10)
 
 
+def _follow(make_model, xc, ivp_kw, Fc, Mc, root_method, what):
+    """Continuation in a factor lam from 0 to 1: ``make_model(lam)`` is the problem at lam, each
+    step solved from the last (adaptive steps). Returns (x at lam = 1, nfev)."""
+    lam, dlam, nfev = 0.0, 0.1, 0
+    while lam < 1.0:
+        lam_try = min(1.0, lam + dlam)
+        m_l = make_model(lam_try)
+        xs, rns, oks = _scaled_shoot(m_l, xc, ivp_kw, Fc, Mc, root_method)
+        nfev += m_l.nfev
+        if oks:
+            lam, xc = lam_try, xs
+            dlam = min(0.25, dlam * 1.5)
+        else:
+            dlam *= 0.5
+            if dlam < 1e-4:
+                raise RuntimeError(f"solve_reference: {what} failed at {lam}")
+    return xc, nfev
+
+
 def _solve_tension_controlled(rod, model, kink_loads, x0, ivp_kw, root_method):
     """Direct shooting, then load continuation if it fails. Returns (x, ok, nfev, model)."""
     mdl = _Model(rod, model, kink_loads=kink_loads)
@@ -699,21 +718,10 @@ def _solve_tension_controlled(rod, model, kink_loads, x0, ivp_kw, root_method):
     nfev += mdl.nfev
     if not ok:
         # continuation in the load factor lam: tensions, tip loads, gravity, point forces
-        lam, dlam = 0.0, 0.1
-        xc = np.zeros(6)
-        while lam < 1.0:
-            lam_try = min(1.0, lam + dlam)
-            m_l = _Model(rod, model, scale=lam_try, kink_loads=kink_loads)
-            xs, rns, oks = _scaled_shoot(m_l, xc, ivp_kw, Fc, Mc, root_method)
-            nfev += m_l.nfev
-            if oks:
-                lam, xc = lam_try, xs
-                dlam = min(0.25, dlam * 1.5)
-            else:
-                dlam *= 0.5
-                if dlam < 1e-4:
-                    raise RuntimeError(f"solve_reference: continuation failed at load factor {lam}")
-        x, ok = xc, True
+        x, n = _follow(lambda lam: _Model(rod, model, scale=lam, kink_loads=kink_loads), np.zeros(6), ivp_kw,
+                       Fc, Mc, root_method, "continuation at load factor")
+        nfev += n
+        ok = True
     return x, ok, nfev, mdl
 
 
@@ -735,27 +743,17 @@ def _solve_length_controlled(rod, model, kink_loads, guess_x, ivp_kw, root_metho
         nfev += mdl.nfev
         if not ok:
             # homotopy from the reference state (blend 0: all tendons at pretension, no friction)
-            lam, dlam = 0.0, 0.1
             m_l = _Model(rod, model, kink_loads=kink_loads, ref_lengths=ref, slack=slack, blend=0.0)
             xc = np.concatenate([ref_x, [t.pre for t in m_l.free]])
             xc, _, ok0 = _scaled_shoot(m_l, xc, ivp_kw, Fc, Mc, root_method)
             nfev += m_l.nfev
             if not ok0:
                 raise RuntimeError("solve_reference: length-control homotopy failed at its start")
-            while lam < 1.0:
-                lam_try = min(1.0, lam + dlam)
-                m_l = _Model(rod, model, kink_loads=kink_loads, ref_lengths=ref, slack=slack,
-                             blend=lam_try)
-                xs, rns, oks = _scaled_shoot(m_l, xc, ivp_kw, Fc, Mc, root_method)
-                nfev += m_l.nfev
-                if oks:
-                    lam, xc = lam_try, xs
-                    dlam = min(0.25, dlam * 1.5)
-                else:
-                    dlam *= 0.5
-                    if dlam < 1e-4:
-                        raise RuntimeError(f"solve_reference: length-control homotopy failed at {lam}")
-            x, ok = xc, True
+            x, n = _follow(lambda lam: _Model(rod, model, kink_loads=kink_loads, ref_lengths=ref, slack=slack,
+                                              blend=lam), xc, ivp_kw, Fc, Mc, root_method,
+                           "length-control homotopy")
+            nfev += n
+            ok = True
         # complementarity: taut tendons need tau0 >= 0, slack ones ell0 <= ell0_ref - q
         neg = {t.idx for t, tau in zip(mdl.free, x[6:]) if tau < 0.0}
         _, yL = mdl.residual_x(x, **ivp_kw)
