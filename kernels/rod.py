@@ -440,6 +440,8 @@ def make_rod_funcs(dtype, model: str, dynamic: bool, rod: str = "cosserat", feat
         dm = R * lam_m - wp.cross(dp, n)
         dv = vec3()
         du = vec3()
+        dE = evec()
+        rated = int(0)  # dE already from the friction passes
         if wp.static(coupled):
             As, Bs, Hs, a_sum, b_sum, pulls = coupled_tendon_load(md, ct, b, s, u, v, step, tau)
             kse = rvec(md, b, KSE)
@@ -460,7 +462,8 @@ def make_rod_funcs(dtype, model: str, dynamic: bool, rod: str = "cosserat", feat
                     dv = wp.cw_div(c, kse)
             else:
                 # With friction the load sum tau' t depends on (v', u') through kappa = |t'|: a
-                # fixed point from the frictionless solve, contracting by ~ mu tau r^2 / EI.
+                # fixed point from the frictionless solve, contracting by ~ mu tau r^2 / EI; the
+                # tendon rates of its last pass (kappa one pass behind: ~1e-6 relative) are dE.
                 if wp.static(kirchhoff):  # v' = 0: the lower block row alone
                     Sinv = wp.inverse(wp.diag(kbt) + Hs)
                     du = Sinv * d
@@ -469,6 +472,7 @@ def make_rod_funcs(dtype, model: str, dynamic: bool, rod: str = "cosserat", feat
                         for _pass in range(FRICTION_PASSES + 0 * md.n_tendons):
                             dE, fb, lb = tendon_rates(md, b, s, u, v, dv, du, step, tau, g, h)
                             du = Sinv * (d - lb)
+                        rated = 1
                     dn = dn - R * (a_sum + wp.transpose(Bs) * du + fb)
                 else:
                     Pinv = wp.inverse(wp.diag(kse) + As)
@@ -481,6 +485,7 @@ def make_rod_funcs(dtype, model: str, dynamic: bool, rod: str = "cosserat", feat
                             dE, fb, lb = tendon_rates(md, b, s, u, v, dv, du, step, tau, g, h)
                             du = Sinv * ((d - lb) - BP * (c - fb))
                             dv = Pinv * ((c - fb) - wp.transpose(Bs) * du)
+                        rated = 1
                     dn = dn - R * (a_sum + c - wp.cw_mul(kse, dv))
                 dm = dm - R * (b_sum + d - wp.cw_mul(kbt, du))
         elif wp.static(friction):  # point model: the rod's own strain rates give the tendon paths' turning
@@ -489,9 +494,9 @@ def make_rod_funcs(dtype, model: str, dynamic: bool, rod: str = "cosserat", feat
             du = wp.cw_div(lam_m - wp.cross(v, rtn) - wp.cross(u, rtm), kbt)
             if wp.static(not kirchhoff):
                 dv = wp.cw_div(lam_n - wp.cross(u, rtn), kse)
-        dE = evec()
         if wp.static(tstate):
-            dE, fb2, lb2 = tendon_rates(md, b, s, u, v, dv, du, step, tau, g, h)
+            if rated == 0:
+                dE, fb2, lb2 = tendon_rates(md, b, s, u, v, dv, du, step, tau, g, h)
             if wp.static(friction):
                 if store != 0:
                     for k in range(md.n_tendons):

@@ -158,3 +158,58 @@ def test_ray_backend_without_ray_is_a_clear_error(tmp_path, capsys, monkeypatch)
     scene.write_text(GRID)
     assert main(["workspace", str(scene), "--out", str(tmp_path / "o"), "--quiet", "--backend", "ray"]) == 2
     assert 'pip install -e ".[ray]"' in capsys.readouterr().err
+
+
+DISPLACED = """
+[robot]
+length = 0.5
+youngs_modulus = 190e9
+poisson_ratio = 0.3
+radius = 0.001
+density = 7800
+[[tendons]]
+offset = [0.01, 0.0]
+control = "displacement"
+pretension = 0.5
+compliance = 2.7e-5
+friction = 0.1
+[[tendons]]
+offset = [-0.01, 0.0]
+control = "displacement"
+pretension = 0.5
+compliance = 2.7e-5
+friction = 0.1
+[actuation]
+tensions = [[0.0, 0.0]]
+displacements = [[0.0, 0.0]]
+[solver]
+nodes = 16
+[sweep]
+chunk = 5
+[sweep.grid]
+"actuation.displacements[0]" = [-0.003, 0.003, 3]
+"actuation.displacements[1]" = [-0.003, 0.003, 3]
+"tendons[0].friction" = [0.0, 0.3, 2]
+"""
+
+
+def test_sweep_over_displacements_and_friction_reports_slack(tmp_path):
+    """Displacements and mu swept like any field: every row equals its direct solve, and a
+    tendon released by 3 mm is slack with exactly zero tension."""
+    scene = tmp_path / "d.toml"
+    scene.write_text(DISPLACED)
+    assert main(["workspace", str(scene), "--out", str(tmp_path / "o"), "--quiet"]) == 0
+    res = np.load(tmp_path / "o" / "results.npz")
+    assert res["ok"].all() and res["slack"].shape == (18, 2)
+    q = np.c_[res["sample:actuation.displacements[0]"], res["sample:actuation.displacements[1]"]]
+    released = q < -0.002
+    assert res["slack"][released].all() and (res["tension_base"][released] == 0).all()
+    data = tomllib.loads(DISPLACED)
+    for i in (0, 7, 17):
+        d = {k: v for k, v in data.items() if k != "sweep"}
+        d["tendons"] = [dict(t) for t in data["tendons"]]
+        d["tendons"][0]["friction"] = float(res["sample:tendons[0].friction"][i])
+        d["actuation"] = dict(tensions=[[0.0, 0.0]], displacements=[q[i].tolist()])
+        sc = scene_from_dict(d)
+        sol = tw.solve_static(sc.robot, sc.tensions, options=sc.options, **sc.static_command())
+        assert np.abs(sol.tip_position[0] - res["tip_position"][i]).max() < 1e-12
