@@ -37,6 +37,14 @@ def test_displacement_example_reports_each_tendon(tmp_path):
     assert all(t["free_length"] > 0.49 for t in tendons)
 
 
+@pytest.mark.parametrize("name", ["friction_converging", "spline_route"])
+def test_tendon_examples_solve(tmp_path, name):
+    out = tmp_path / "out"
+    assert main(["static", str(EXAMPLES / f"{name}.toml"), "--out", str(out), "--no-figures"]) == 0
+    rod = json.loads((out / "results.json").read_text())["rods"][0]
+    assert rod["converged"] and len(rod["tendons"]) == 2
+
+
 def test_static_example_outputs_agree_with_api(tmp_path, capsys):
     out = tmp_path / "out"
     assert main(["static", str(EXAMPLES / "seed_robot.toml"), "--out", str(out)]) == 0
