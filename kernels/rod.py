@@ -81,7 +81,7 @@ def make_structs(dtype, dynamic: bool):
         are unknowns; with friction, ``tau`` is the tension at the motor, s = 0)."""
 
         tau: wp.array2d(dtype=dtype)  # (B, K) tensions [N]
-        avail: wp.array2d(dtype=dtype)  # (B, K) unstretched length given to a displaced tendon [m]
+        avail: wp.array2d(dtype=dtype)  # (B, K) unstretched length given to a displaced tendon less its arc length [m]
         slip: wp.array2d(dtype=dtype)  # (B, K) slip direction sigma in [-1, 1] (+1: sliding toward the motor)
         stick: wp.array2d(dtype=int)  # (B, K) 1: stick-slip from the previous tension profile (tau_old)
         taut: wp.array2d(dtype=int)  # (B, K) displaced tendon: 1 taut (tension unknown), 0 slack (zero tension)
@@ -107,9 +107,9 @@ def make_rod_funcs(dtype, model: str, dynamic: bool, rod: str = "cosserat", feat
     """``rod``: "cosserat" (shear and extension) or "kirchhoff" (inextensible, unshearable:
     v = v*, so v' = 0 and the coupled tendon system shrinks to 3x3 for u').
 
-    With ``features.tendons`` = K > 0 the state along s gains E = (Theta_k, ell_k, ell0_k),
-    k < K: the turning of each tendon's path, its length and its unstretched length (tendons
-    that have ended stop accumulating), and the tension of tendon k at s is
+    With ``features.tendons`` = K > 0 the state along s gains E = (Theta_k, ell_k - s, ell0_k - s),
+    k < K: the turning of each tendon's path, its length and its unstretched length, less the arc
+    length run (tendons that have ended stop accumulating), and the tension of tendon k at s is
     ``tensions(t0, E)``: t0 the tension at the motor (commanded, or a shooting unknown under
     displacement control), times the capstan factor exp(-sigma mu Theta) (``friction``).
     Loops over the tendons run to the runtime count md.n_tendons (= K), not to the constant K:
@@ -323,8 +323,10 @@ def make_rod_funcs(dtype, model: str, dynamic: bool, rod: str = "cosserat", feat
     def tendon_rates(md: Model, b: int, s: dtype, u: vec3, v: vec3, dv: vec3, du: vec3, step: int, tau: kvec,
                      g: kvec, h: kvec):
         """Per tendon present on this interval: d/ds of E (turning rate kappa = |t'| of the unit
-        tangent t = R pb / |pb|, path rate |pb|, unstretched rate |pb| / (1 + c tau)), and with
-        friction the friction load on the backbone, sum tau' t (body frame), with its moment."""
+        tangent t = R pb / |pb|, path rate |pb| - 1, unstretched rate |pb| / (1 + c tau) - 1: E
+        holds the lengths less the arc length run, small numbers that float32 keeps to its
+        relative precision), and with friction the friction load on the backbone, sum tau' t
+        (body frame), with its moment."""
         dE = evec()
         fb = vec3()
         lb = vec3()
@@ -334,8 +336,8 @@ def make_rod_funcs(dtype, model: str, dynamic: bool, rod: str = "cosserat", feat
                 r, dr, ddr = tendon_route(md, b, k, s)
                 pb = wp.cross(u, r) + dr + v
                 npb = wp.length(pb)
-                dE[K + k] = npb
-                dE[2 * K + k] = npb / (one + md.tendon[it, k, T_COMPLIANCE] * tau[k])
+                dE[K + k] = npb - one  # lengths less the arc length: no cancellation in float32
+                dE[2 * K + k] = npb / (one + md.tendon[it, k, T_COMPLIANCE] * tau[k]) - one
                 if wp.static(friction):
                     tb = pb / npb
                     dpb = dv + wp.cross(du, r) + wp.cross(u, dr) + ddr
@@ -627,7 +629,8 @@ def make_rod_funcs(dtype, model: str, dynamic: bool, rod: str = "cosserat", feat
     @wp.func
     def length_residuals(md: Model, ct: Control, b: int, x: uvec, E: evec, res: uvec):
         """The residual of each displacement-controlled tendon j (tendon k): (ell0 - avail) / L,
-        the unstretched length its path needs minus what the motor gives it, scaled like the rod
+        the unstretched length its path needs minus what the motor gives it (both less the
+        tendon's arc length l: E holds ell0 - l, Control.avail holds avail - l), scaled like the rod
         residual (L |r| is a length error [m]). A taut tendon's unknown is its tension; a slack
         one carries none and its residual is minus slope x more, so that -x slope L is its
         slack (the slope of the taut branch at zero tension on a straight rod): a consistent

@@ -150,7 +150,8 @@ class Tables:
     """The packed host tables of one robot at one node count (leading dimension 1 or B).
 
     rod, dyn, tendon, pforce: see kernels/layout.py; grid (1|B, N+1) [m]; term_node (1|B, K)
-    and pnode (1|B, P): node indices; route (1, K, S, 9): the spline segments of tendons routed
+    and pnode (1|B, P): node indices; tendon_len (1|B, K): termination arc lengths [m] (the
+    kernels' tendon lengths are relative to them); route (1, K, S, 9): the spline segments of tendons routed
     through points (Robot.route_table); tmode (1, K): the shooting unknown 6 + j of each
     displacement-controlled tendon (-1: tension control); features: the physics the robot
     contains; straight: its Newton start. Derived from the rod table: ``scales`` and ``stiffness``.
@@ -165,6 +166,7 @@ class Tables:
     pnode: np.ndarray
     tmode: np.ndarray
     route: np.ndarray
+    tendon_len: np.ndarray
     features: Features
     straight: StraightRod
 
@@ -182,8 +184,8 @@ class Tables:
         if features.displaced:
             tmode[0, list(robot.displaced)] = np.arange(features.displaced)
         return cls(rod=pack_rod(robot), dyn=pack_dynamics(robot), tendon=tendon, grid=grid, term_node=term_node,
-                   pforce=point_f, pnode=point_node, tmode=tmode, route=robot.route_table(), features=features,
-                   straight=StraightRod.of(robot))
+                   pforce=point_f, pnode=point_node, tmode=tmode, route=robot.route_table(), tendon_len=tendon_len,
+                   features=features, straight=StraightRod.of(robot))
 
     @property
     def nu(self) -> int:

@@ -206,7 +206,7 @@ class Simulator:
 
     def _slip(self) -> np.ndarray:
         """Slip directions from the tendons' path-length rates over the last step."""
-        path = np.concatenate([c.sh.nodes.tend.numpy()[..., layout.TO_PATH] for c in self.parts]).astype(np.float64)
+        path = np.concatenate([c.sh.tendon_table()[..., layout.TO_PATH] for c in self.parts])
         rate = (path - self.path) / self.dt
         self.path = path
         return np.tanh(-rate / self.slip_speed)
@@ -257,7 +257,7 @@ class Simulator:
         direction that step used (the next one takes it from this step's motion)."""
         if not self.tables.features.tendons:
             raise InputError("tendons(): this robot has no tendon states (no displacement control or friction)")
-        td = np.concatenate([c.sh.nodes.tend.numpy() for c in self.parts]).astype(np.float64)
+        td = np.concatenate([c.sh.tendon_table() for c in self.parts])
         out = {"tension_base": td[..., layout.TO_BASE], "tension_end": td[..., layout.TO_END],
                "path_length": td[..., layout.TO_PATH], "turning": td[..., layout.TO_TURN]}
         if self.tables.features.friction:

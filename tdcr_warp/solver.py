@@ -77,6 +77,7 @@ class Shooting:
         self.dynamic = dynamic
         k = self.kern = make_shooting_kernels(self.dev.wdtype, integrator, model, dynamic, rod, tables.features)
         self.b = b = hi - lo
+        self.tendon_len = np.broadcast_to(tables.rows("tendon_len", lo, hi), (b, tables.tendon_len.shape[1]))
         self.n1 = n1 = tables.grid.shape[1]
         self.n_slots = (n1 - 1) * k.stages + 2 * n1
         self.model = put_model(k, self.dev, tables, lo, hi)
@@ -102,7 +103,7 @@ class Shooting:
         gives each displaced tendon (b, K) [m]."""
         self.set_tensions(tau)
         if avail is not None and self.kern.tstate:
-            self.dev.put(self.control.avail, avail)
+            self.dev.put(self.control.avail, avail - self.tendon_len)  # the kernels' lengths are less l
 
     def set_taut(self, taut: np.ndarray) -> None:
         """Which displaced tendons are taut (b, K) bool: their unknown is a tension; the others
@@ -187,6 +188,14 @@ class Shooting:
     def converged(self) -> np.ndarray:
         return (self.newton.status.numpy() & layout.CONVERGED) != 0
 
+    def tendon_table(self) -> np.ndarray:
+        """(b, K, layout.TO_WIDTH) float64 per tendon from the last stored evaluation, lengths in
+        full (the kernels keep them less the tendon's arc length)."""
+        td = self.nodes.tend.numpy().astype(np.float64)
+        for col in (layout.TO_PATH, layout.TO_FREE):
+            td[..., col] += self.tendon_len
+        return td
+
     def results(self) -> dict[str, np.ndarray]:
         """Host copies (float64) of the solution and the outcome of every rod (with tendon states
         also ``tendons`` (b, K, layout.TO_WIDTH), ``tension_nodes`` (b, N+1, K) and with friction
@@ -196,7 +205,7 @@ class Shooting:
         status = nw.status.numpy().copy()
         extra = {}
         if self.kern.tstate:
-            extra = {"tendons": out.tend.numpy().astype(f64), "tension_nodes": out.taun.numpy().astype(f64)}
+            extra = {"tendons": self.tendon_table(), "tension_nodes": out.taun.numpy().astype(f64)}
         if self.kern.friction:
             extra["tension_slots"] = self.step.tprof.numpy().astype(f64)
         return extra | {
