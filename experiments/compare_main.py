@@ -13,10 +13,12 @@ Cases (statics, dynamics, closed-loop control; see CASES): every examples/*.toml
 ``tdcr-warp static`` does; the report's robot with 64 random tension rows in [0, 3] N under each
 solver option; helical routing; two sections with a point force, tip loads and precurvature;
 per-rod parameters; a mixed batch with heavy rods that need load continuation; rods that fail
-beside one that converges; a warm start; the report's dynamic scene, a 16-rod batch of random
-tension steps, alpha = 0 and -0.45, the point-load model, the lightly damped soft rod rescued by
-the damping homotopy, rods flagged below the single-shooting dt limit; closed loops on
-examples/our_control.toml, examples/seed_control.toml and a 3-rod batch. Batches hold at most 64
+beside one that converges; a warm start; tendons by displacement with slack, with friction (slip
++1 and -1, a kink), a stick-slip pull-release sequence, routes through points and converging
+routes without kink loads; the report's dynamic scene, a 16-rod batch of random tension steps,
+alpha = 0 and -0.45, the point-load model, the lightly damped soft rod rescued by the damping
+homotopy, rods flagged below the single-shooting dt limit, a displaced pair with friction; closed
+loops on examples/our_control.toml, examples/seed_control.toml and a 3-rod batch. Batches hold at most 64
 rods, so the CPU splits them the same way on every machine with 2 cores or more.
 
 ``save`` writes one .npz: "<case>/<field>" arrays, rod first (trajectories: rod, step, ...), plus
@@ -112,8 +114,9 @@ def control_fields(run) -> dict[str, np.ndarray]:
 def scene_static(stem: str) -> Case:
     def run(device):
         scene = load_scene(EXAMPLES / f"{stem}.toml")
+        command = scene.static_command() if hasattr(scene, "static_command") else {}  # (older versions: none)
         return scene.robot, static_fields(tw.solve_static(scene.robot, scene.tensions, options=scene.options,
-                                                          device=device))
+                                                          device=device, **command))
     return Case(f"static/scene_{stem}", f"examples/{stem}.toml solved as `tdcr-warp static` does", run)
 
 
@@ -169,6 +172,62 @@ def warm_static(device):
     rob, tau = seed_robot(), uniform(16, 4, seed=6)
     cold = tw.solve_static(rob, tau, nodes=20, device=device)
     return rob, static_fields(tw.solve_static(rob, tau + 0.05, nodes=20, initial=cold, device=device))
+
+
+def tendon_fields(sol) -> dict[str, np.ndarray]:
+    return static_fields(sol) | {"tensions": np.stack([sol.tendon_tension_base, sol.tendon_tension_end], axis=1)}
+
+
+def displaced_static(device):
+    """The report robot by displacement, wires of 0.3 mm steel, pretension 0.5 N: random
+    displacements in [-3, 4] mm (released tendons go slack), N = 30."""
+    rob = seed_robot(tendons=[tw.Tendon(offset=o, control="displacement", compliance=2.7e-5, pretension=0.5)
+                              for o in OFFSETS])
+    q = np.random.default_rng(8).uniform(-0.003, 0.004, (16, 4))
+    return rob, tendon_fields(tw.solve_static(rob, displacements=q, nodes=30, device=device))
+
+
+def friction_static(device):
+    """A helical tendon past a straight one ending at 0.25 m (a kink), mu = 0.25, tip force,
+    slip +1 on 8 rows and -1 on 8, N = 40."""
+    rob = seed_robot(tendons=[tw.Tendon(offset=(0.004, 0.0), routing="helix", helix_radius=0.006, turns=0.75,
+                                        friction=0.25),
+                              tw.Tendon(offset=(0.0, -0.01), length=0.25, friction=0.25)], tip_force=(0.02, 0, 0))
+    slip = np.repeat([[1.0, 1.0], [-1.0, -1.0]], 8, axis=0)
+    return rob, tendon_fields(tw.solve_static(rob, uniform(16, 2, seed=9), slip=slip, nodes=40, device=device))
+
+
+def stick_slip_static(device):
+    """A pull-release cycle of a displaced tendon with mu = 0.3, each step from the last
+    (history): 0 -> 4 -> 1 mm in 6 steps; the fields of every step."""
+    rob = seed_robot(tendons=[tw.Tendon(offset=(0.0, 0.01), control="displacement", friction=0.3, pretension=0.2)])
+    sol, steps = None, []
+    for q in (0.0, 0.002, 0.004, 0.0035, 0.0025, 0.001):
+        sol = tw.solve_static(rob, displacements=[q], history=sol, nodes=30, device=device)
+        steps.append(tendon_fields(sol))
+    return rob, {k: np.concatenate([f[k][:, None] for f in steps], axis=1) for k in steps[0]}
+
+
+def routes_static(device):
+    """A converging route and a route through points to 0.25 m, kink loads off, N = 40."""
+    pts = [(0.0, 0.01, 0.0), (0.0625, 0.0092, 0.0038), (0.125, 0.0071, 0.0071), (0.1875, 0.0038, 0.0092),
+           (0.25, 0.0, 0.01)]
+    rob = seed_robot(tendons=[tw.Tendon(routing="points", points=pts, length=0.25),
+                              tw.Tendon(offset=(0.0, -0.01), routing="linear", offset_end=(0.0, -0.004))])
+    return rob, tendon_fields(tw.solve_static(rob, uniform(16, 2, seed=10), nodes=40, kink_loads=False,
+                                              device=device))
+
+
+def tendon_dynamics(device):
+    """An antagonistic displaced pair with mu = 0.2 pulled at 5 mm/s for 20 steps of 5 ms."""
+    rob = seed_robot(tendons=[tw.Tendon(offset=(0, 0.01), control="displacement", pretension=0.5,
+                                        compliance=2.7e-5, friction=0.2),
+                              tw.Tendon(offset=(0, -0.01), control="displacement", pretension=0.5,
+                                        compliance=2.7e-5, friction=0.2)], **SEED_DAMPING)
+    sim = tw.Simulator(rob, np.zeros((2, 2)), displacements=np.zeros((2, 2)), dt=0.005, alpha=-0.2, nodes=20,
+                       device=device)
+    q = 0.005 * 0.005 * np.arange(1, 21)[:, None] * np.array([[1.0, -1.0]])
+    return rob, trajectory_fields(sim.simulate(np.zeros((20, 2)), 20, shapes_every=5, displacements=q))
 
 
 # --- dynamics ------------------------------------------------------------------------------------
@@ -257,6 +316,13 @@ CASES = [
     Case("static/failing_rods", "7 soft rods (E 1e5 Pa) at 5 kN that fail beside a converging one, max_iter 8",
          failing_static),
     Case("static/warm_start", "16 rows U[0, 3] N + 0.05 N from the solution at the rows, N = 20", warm_static),
+    Case("static/tendons_displacement", "report robot by displacement, 16 rows U[-3, 4] mm, slack where released",
+         displaced_static),
+    Case("static/tendons_friction", "helical + straight tendon with mu = 0.25, a kink, slip +1 and -1",
+         friction_static),
+    Case("static/tendons_stick_slip", "pull-release cycle of a displaced tendon with mu = 0.3 (history), 6 steps",
+         stick_slip_static),
+    Case("static/tendons_routes", "a route through points and a converging route, kink loads off", routes_static),
     Case("dynamics/seed_dynamics", "examples/seed_dynamics.toml, 30 steps, shapes every 10", seed_dynamics),
     Case("dynamics/batch16_alpha-0.2", "16 rods, random tension steps every 5 steps, 20 steps of 5 ms, N = 20",
          step_dynamics(16, 20, -0.2)),
@@ -270,6 +336,7 @@ CASES = [
          small_dt_dynamics),
     scene_control("our_control"),
     scene_control("seed_control"),
+    Case("dynamics/tendons", "displaced pair with mu = 0.2 pulled at 5 mm/s, 20 steps", tendon_dynamics),
     Case("control/batch3_smc", "3 rods, per-rod targets and gain_c, sgn(S), 20 steps, N = 20", batch_control),
 ]
 BY_NAME = {c.name: c for c in CASES}

@@ -83,7 +83,7 @@ def make_structs(dtype, dynamic: bool):
         tau: wp.array2d(dtype=dtype)  # (B, K) tensions [N]
         avail: wp.array2d(dtype=dtype)  # (B, K) unstretched length given to a displaced tendon less its arc length [m]
         slip: wp.array2d(dtype=dtype)  # (B, K) slip direction sigma in [-1, 1] (+1: sliding toward the motor)
-        stick: wp.array2d(dtype=int)  # (B, K) 1: stick-slip from the previous tension profile (tau_old)
+        stick: int  # 1: stick-slip from the previous tension profile (tau_old), every rod and tendon
         taut: wp.array2d(dtype=int)  # (B, K) displaced tendon: 1 taut (tension unknown), 0 slack (zero tension)
         tau_old: wp.array3d(dtype=dtype)  # (B, S, K) previous tension at every evaluation slot [N]
         dtau_old: wp.array3d(dtype=dtype)  # (B, S, K) its arc-length derivative [N/m]
@@ -278,7 +278,7 @@ def make_rod_funcs(dtype, model: str, dynamic: bool, rod: str = "cosserat", feat
             for k in range(md.n_tendons):
                 mu = md.tendon[it, k, T_MU]
                 th = E[k]
-                if ct.stick[b, k] != 0:
+                if ct.stick != 0:
                     lo = t0[k] * wp.exp(-mu * th)
                     hi = t0[k] * wp.exp(mu * th)
                     old = ct.tau_old[b, slot, k]
@@ -414,8 +414,13 @@ def make_rod_funcs(dtype, model: str, dynamic: bool, rod: str = "cosserat", feat
         rtn = Rt * n  # Kse (v - v*) + Bse v_t
         rtm = Rt * m  # Kbt (u - u*) + Bbt u_t
         v, u = body_strains(md, sp, b, rtn, rtm, slot)
-        ig = row(b, md.grid)
-        tau, g, h = tensions(md, ct, b, t0, E, slot, md.grid[ig, step + 1] - md.grid[ig, step], wp.length(u))
+        h_step = zero  # the interval and the curvature set the stick-slip blend (friction only)
+        curv = zero
+        if wp.static(friction):
+            ig = row(b, md.grid)
+            h_step = md.grid[ig, step + 1] - md.grid[ig, step]
+            curv = wp.length(u)
+        tau, g, h = tensions(md, ct, b, t0, E, slot, h_step, curv)
         dp = R * v
         dR = R * wp.skew(u)
         dq = vec3()

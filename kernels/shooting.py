@@ -111,21 +111,20 @@ def make_shooting_kernels(dtype, integrator: str, model: str, dynamic: bool = Fa
         return dtype(1.0)
 
     @wp.func
-    def store_tensions(md: Model, ct: Control, sp: Step, b: int, out: Nodes, t0: kvec, E: evec, node: int, slot: int):
+    def store_tensions(md: Model, ct: Control, b: int, out: Nodes, t0: kvec, E: evec, node: int, slot: int):
         """The tensions just distal of ``node`` (store pass, tendon states only; ``slot``: an
         evaluation there, whose remembered tension a stick-slip solve reads)."""
         if wp.static(tstate):
             tau, g, h = rf.tensions(md, ct, b, t0, E, slot, zero, zero)
-            for k in range(md.n_tendons):  # a runtime bound (= K): not unrolled
+            for k in range(md.n_tendons):
                 out.taun[b, node, k] = tau[k]
 
     @wp.func
-    def store_end_tensions(md: Model, ct: Control, sp: Step, b: int, out: Nodes, t0: kvec, E: evec, node: int,
-                           slot: int):
+    def store_end_tensions(md: Model, ct: Control, b: int, out: Nodes, t0: kvec, E: evec, node: int, slot: int):
         """The tension of each tendon ending at ``node``, just before its end."""
         if wp.static(tstate):
             tau, g, h = rf.tensions(md, ct, b, t0, E, slot, zero, zero)
-            for k in range(md.n_tendons):  # a runtime bound (= K): not unrolled
+            for k in range(md.n_tendons):
                 if rf.term_node(md, b, k) == node:
                     out.tend[b, k, TO_END] = tau[k]
 
@@ -152,7 +151,7 @@ def make_shooting_kernels(dtype, integrator: str, model: str, dynamic: bool = Fa
             store_node(out, b, 0, p, R, n, m, q, w)
         n, m, E = rf.node_jumps(md, ct, sp, b, zero, R, n, m, q, w, t0, E, 0, jslot, jslot + 1, store)
         if store != 0:
-            store_tensions(md, ct, sp, b, out, t0, E, 0, 0)
+            store_tensions(md, ct, b, out, t0, E, 0, 0)
         k = int(0)
         while k < n_int:
             k1 = k + 1
@@ -211,10 +210,10 @@ def make_shooting_kernels(dtype, integrator: str, model: str, dynamic: bool = Fa
                         orth = wp.max(orth, wp.abs(dev[i, j]))
             js = jslot + 2 * k1
             if store != 0:
-                store_end_tensions(md, ct, sp, b, out, t0, E, k1, js)
+                store_end_tensions(md, ct, b, out, t0, E, k1, js)
             n, m, E = rf.node_jumps(md, ct, sp, b, md.grid[ig, k1], R, n, m, q, w, t0, E, k1, js, js + 1, store)
             if store != 0:  # the first stage of the next interval is just distal of node k1
-                store_tensions(md, ct, sp, b, out, t0, E, k1, wp.where(k1 < n_int, k1 * stages, js + 1))
+                store_tensions(md, ct, b, out, t0, E, k1, wp.where(k1 < n_int, k1 * stages, js + 1))
             k = k1
         if store != 0:
             out.orth[b] = orth

@@ -132,7 +132,7 @@ def scene_features(robot: Robot, tendon: np.ndarray, specialize: bool, kink_load
     has mu > 0, one unknown per displacement-controlled tendon. ``mode`` "reference": every
     tendon in tension control without friction, integrating the tendon lengths (the reference
     state of displacement control); ``lengths``: integrate them anyway."""
-    friction = mode == "solve" and bool(np.any(tendon[..., layout.T_MU] > 0))
+    friction = mode == "solve" and robot.has_friction
     displaced = len(robot.displaced) if mode == "solve" else 0
     states = robot.n_tendons if (friction or displaced or lengths or mode == "reference") else 0
     spline = any(t.routing == "points" for t in robot.tendons)
@@ -324,14 +324,14 @@ def put_model(kern, dev: Device, tables: Tables, lo: int, hi: int):
 def make_control(kern, dev: Device, tau: np.ndarray, n_slots: int):
     """The kernel ``Control``: tensions (b, K) [N]; with tendon states also the available
     unstretched lengths of displaced tendons (b, K) [m], slip directions (b, K) (+1) and the
-    stick-slip memory (b, S, K), all zero until set (``set_command``, ``set_memory``)."""
+    stick-slip memory (b, S, K), off and zero until set (``set_command``, ``set_memory``)."""
     b, K = tau.shape
     ct = kern.Control()
     ct.tau = dev.array(_pad(tau, (1,)))
     shape = (b, K) if kern.tstate else (1, 1)
     ct.avail = dev.array(np.zeros(shape))
     ct.slip = dev.array(np.ones(shape))
-    ct.stick = dev.array(np.zeros(shape), np.int32)
+    ct.stick = 0
     ct.taut = dev.array(np.ones(shape), np.int32)
     memory = (b, n_slots, K) if kern.friction else (1, 1, 1)
     ct.tau_old = dev.array(np.zeros(memory))

@@ -22,9 +22,9 @@ from .kernels import layout
 from .kernels.history import make_history_kernels
 from .parallel import parallel, split
 from .progress import Progress
-from .robot import InputError, Robot, check_displacements, check_tensions, require_memory
+from .robot import InputError, Robot, check_command, check_tensions, require_memory
 from .solver import Shooting
-from .statics import StaticSolution, reference_lengths, settle_slack, solve_static
+from .statics import StaticSolution, available_lengths, reference_lengths, settle_slack, solve_static
 from .types import StaticOptions
 
 __all__ = ["Simulator", "StepResult", "Trajectory", "bdf_alpha_coefficients"]
@@ -115,8 +115,9 @@ class Simulator:
         if not (isinstance(slip_speed, (int, float)) and math.isfinite(slip_speed) and slip_speed > 0):
             raise InputError(f"slip_speed must be a positive speed [m/s], got {slip_speed!r}")
         self.slip_speed = float(slip_speed)
-        tau = check_tensions(robot, np.zeros((robot.batch_size, robot.n_tendons)) if tensions is None else tensions)
+        tau, q = check_command(robot, tensions, displacements)
         self.B = tau.shape[0]
+        self._q = np.zeros_like(tau) if q is None else q  # the displacements held when a step gives none
         self.dev = wp.get_device(device)
         if self.opts.model == "constant_curvature":
             raise InputError("dynamics needs a rod model: solver model 'coupled' or 'point'")
@@ -136,7 +137,6 @@ class Simulator:
         x0 = static.unknowns if static.unknowns is not None else static.base_wrench / tables.scale_rows(self.B)
         if x0.shape[1] != tables.nu:
             raise InputError(f"initial: {x0.shape[1]} shooting unknowns, this robot needs {tables.nu}")
-        self._static = static
         self._reference = None
         self.path = static.tendon_path_length
         self.chunks = split(self.B, self.dev, self.opts.threads)
@@ -181,28 +181,19 @@ class Simulator:
                       "fail, and are then flagged", stacklevel=3)
 
     def _command(self, tensions, displacements) -> tuple[np.ndarray, np.ndarray | None]:
-        """Checked tensions (B, K) and the lengths given to displaced tendons (or None)."""
+        """Checked tensions (B, K) and the lengths given to displaced tendons (or None; no
+        displacements: the last ones)."""
         rb = self.robot
-        tau = check_tensions(rb, np.zeros((self.B, rb.n_tendons)) if tensions is None else tensions)
+        tau, q = check_command(rb, tensions, displacements, self.B)
         if tau.shape[0] != self.B:
             raise InputError(f"tensions: {tau.shape[0]} rows for {self.B} rods")
         if not rb.displaced:
-            if displacements is not None:
-                raise InputError("displacements: no tendon of this robot is under displacement control")
             return tau, None
-        disp = list(rb.displaced)
-        if (tau[:, disp] != 0).any():
-            b, j = np.argwhere(tau[:, disp] != 0)[0]
-            raise InputError(f"tensions[{b}][{disp[j]}]: tendon {disp[j]} is under displacement control")
-        q = np.zeros_like(tau) if displacements is None else check_displacements(rb, displacements, self.B)
+        self._q = self._q if q is None else q
+        q = self._q
         if self._reference is None:
             self._reference = reference_lengths(rb, options=self.opts, device=self.dev)
-        avail = np.zeros_like(tau)
-        avail[:, disp] = self._reference[:, disp] - q[:, disp]
-        if (avail[:, disp] <= 0).any():
-            b, j = np.argwhere(avail[:, disp] <= 0)[0]
-            raise InputError(f"displacements[{b}][{disp[j]}] = {float(q[b, disp[j]])!r} m needs a negative tendon length")
-        return tau, avail
+        return available_lengths(rb, self._reference, tau, q)
 
     def _slip(self) -> np.ndarray:
         """Slip directions from the tendons' path-length rates over the last step."""
@@ -213,7 +204,7 @@ class Simulator:
 
     def step(self, tensions=None, displacements=None) -> StepResult:
         """Advance every live rod by dt under ``tensions`` (B, K) [N] (and ``displacements``
-        (B, K) [m] of the displacement-controlled tendons)."""
+        (B, K) [m] of the displacement-controlled tendons; None: the last ones)."""
         tau, avail = self._command(tensions, displacements)
         first = self.steps_done == 0
         slip = self.slip if self.tables.features.friction else None
@@ -285,7 +276,7 @@ class Simulator:
                  displacements=None) -> Trajectory:
         """Open loop: ``schedule`` is (B, steps, K) or (steps, K) [N], or a callable of the
         step index returning (B, K); ``displacements`` likewise [m] for the tendons under
-        displacement control (None: they stay at the start's)."""
+        displacement control (None: they stay where they are)."""
         if not isinstance(steps, int) or steps < 1:
             raise InputError(f"steps must be a positive integer, got {steps!r}")
         K = self.robot.n_tendons

@@ -32,8 +32,9 @@ def follow(sh: Shooting, set_load, steps: np.ndarray, mask: np.ndarray, start, n
     for j in range(1, int(steps[mask].max(initial=0)) + 1):
         set_load(np.minimum(j / steps, 1.0))
         sh.solve(start if j == 1 else None, mask=on_path, fresh_jacobian=j == 1, **newton)
-        iters[on_path] += sh.newton.iters.numpy()[on_path]
-        shots[on_path] += sh.newton.n_shoot.numpy()[on_path]
+        it, sn = sh.counts()
+        iters[on_path] += it[on_path]
+        shots[on_path] += sn[on_path]
         on_path &= sh.converged() & (j < steps)
         if not on_path.any():
             break
@@ -88,10 +89,9 @@ def load_continuation(sh: Shooting, rod0: np.ndarray, pforce0: np.ndarray, tau: 
         md.rod, md.pforce = own_rod, own_pf
         sh.set_command(tau, None if lengths is None else lengths[1])
     touched = shots > 0
-    it, sh_n = sh.newton.iters.numpy().copy(), sh.newton.n_shoot.numpy().copy()
+    it, sh_n = sh.counts()
     it[touched], sh_n[touched] = iters[touched], shots[touched]
-    sh.dev.put(sh.newton.iters, it)
-    sh.dev.put(sh.newton.n_shoot, sh_n)
+    sh.set_counts(it, sh_n)
 
 
 def retry(sh: Shooting, set_load, failed: np.ndarray, start, newton: dict, continuation: int) -> np.ndarray:

@@ -14,7 +14,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["InputError", "PointForce", "Robot", "Tendon", "check_displacements", "check_slip", "check_tensions"]
+__all__ = ["InputError", "PointForce", "Robot", "Tendon", "check_command", "check_displacements", "check_slip",
+           "check_tensions"]
 
 
 class InputError(ValueError):
@@ -128,6 +129,7 @@ class Tendon:
     pretension: object = 0.0
     friction: object = 0.0
     points: object = None
+    spline: np.ndarray | None = field(init=False, default=None, repr=False, compare=False)  # "points": (M-1, 9)
 
     def __post_init__(self):
         if self.routing not in ROUTINGS:
@@ -175,16 +177,14 @@ class Tendon:
                                  f"{self.length}")
             pts.flags.writeable = False
             object.__setattr__(self, "points", pts)
+            s = pts[:, 0]  # the spline, solved once (every routing evaluation reads it)
+            seg = np.concatenate([s[:-1, None], cubic_spline(s, pts[:, 1]), cubic_spline(s, pts[:, 2])], axis=1)
+            seg.flags.writeable = False
+            object.__setattr__(self, "spline", seg)
             if np.any(self.offset != 0):
                 raise InputError("tendon offset must be (0, 0) with routing = 'points' (the points give the path)")
         elif self.points is not None:
             raise InputError(f"tendon points are only used with routing = 'points', got routing = {self.routing!r}")
-
-    def spline(self) -> np.ndarray:
-        """(M-1, 9) per segment: s_i and the cubic coefficients of x and y (``cubic_spline``)."""
-        s = self.points[:, 0]
-        return np.concatenate([s[:-1, None], cubic_spline(s, self.points[:, 1]),
-                               cubic_spline(s, self.points[:, 2])], axis=1)
 
 
 @dataclass(frozen=True)
@@ -344,6 +344,11 @@ class Robot:
         return _stack_cols([getattr(t, name) for t in self.tendons])
 
     @property
+    def has_friction(self) -> bool:
+        """Whether any tendon of any rod has friction (mu > 0)."""
+        return any(bool(np.any(t.friction > 0)) for t in self.tendons)
+
+    @property
     def displaced(self) -> tuple[int, ...]:
         """The tendons under displacement control, in order (each adds one shooting unknown)."""
         return tuple(k for k, t in enumerate(self.tendons) if t.control == "displacement")
@@ -351,7 +356,7 @@ class Robot:
     def route_table(self) -> np.ndarray:
         """(1, K, S, 9) the spline segments of "points" tendons (zeros elsewhere and beyond a
         tendon's own segments: they add nothing), S the most segments of any tendon."""
-        segs = [t.spline() if t.routing == "points" else np.zeros((0, 9)) for t in self.tendons]
+        segs = [t.spline if t.routing == "points" else np.zeros((0, 9)) for t in self.tendons]
         S = max([len(g) for g in segs] + [1])
         out = np.zeros((1, len(segs), S, 9))
         for k, g in enumerate(segs):
@@ -376,7 +381,7 @@ class Robot:
         ddr = np.stack([-a * w * w * c, -a * w * w * sn, z], axis=-1)
         for k, t in enumerate(self.tendons):
             if t.routing == "points":
-                g = t.spline()
+                g = t.spline
                 sk = np.broadcast_to(s, r.shape[:-1])[..., k]
                 i = np.clip(np.searchsorted(g[:, 0], sk, side="right") - 1, 0, len(g) - 1)
                 u = sk - g[i, 0]
@@ -456,6 +461,28 @@ def check_displacements(robot: Robot, displacements, B: int, name: str = "displa
         raise InputError(f"{name}[{b}][{k}] = {float(q[b, k])!r}: tendon {k} is under tension control "
                          "(set its control = 'displacement' to command it by displacement)")
     return q
+
+
+def check_command(robot: Robot, tensions, displacements, B: int | None = None) -> tuple[np.ndarray, np.ndarray | None]:
+    """Tensions (B, K) (None: zeros) and displacements (B, K) or None, checked together: a
+    tension only on a tendon under tension control, displacements only on a robot with some
+    under displacement control (check_tensions, check_displacements). B (None): the robot's
+    batch, or the rows of a (B, K) command."""
+    if B is None:
+        B = max([robot.batch_size] + [np.shape(a)[0] for a in (tensions, displacements)
+                                      if a is not None and np.ndim(a) == 2])
+    tau = check_tensions(robot, np.zeros((B, robot.n_tendons)) if tensions is None else tensions)
+    disp = list(robot.displaced)
+    bad = tau[:, disp] != 0
+    if bad.any():
+        b, j = np.argwhere(bad)[0]
+        raise InputError(f"tensions[{b}][{disp[j]}] = {float(tau[b, disp[j]])!r}: tendon {disp[j]} is under "
+                         "displacement control (command it with displacements)")
+    if displacements is None:
+        return tau, None
+    if not disp:
+        raise InputError("displacements: no tendon of this robot is under displacement control")
+    return tau, check_displacements(robot, displacements, tau.shape[0])
 
 
 def check_slip(robot: Robot, slip, B: int, name: str = "slip") -> np.ndarray:

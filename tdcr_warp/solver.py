@@ -120,8 +120,7 @@ class Shooting:
             return
         ct, K = self.control, self.kern.K
         self.dev.put(ct.slip, slip)
-        stick = np.zeros(slip.shape, dtype=np.int32) if profile is None else np.ones(slip.shape, dtype=np.int32)
-        self.dev.put(ct.stick, stick)
+        ct.stick = int(profile is not None)
         if profile is not None:
             self.dev.put(ct.tau_old, profile[..., :K])
             self.dev.put(ct.dtau_old, profile[..., K:2 * K])
@@ -181,6 +180,15 @@ class Shooting:
                 iteration()
             if int(nw.n_active.numpy()[0]) == 0:
                 break
+
+    def counts(self) -> tuple[np.ndarray, np.ndarray]:
+        """Newton iterations and integrations of every rod's last solve, (b,) int64 host copies."""
+        return self.newton.iters.numpy().astype(np.int64), self.newton.n_shoot.numpy().astype(np.int64)
+
+    def set_counts(self, iters: np.ndarray, shots: np.ndarray) -> None:
+        """Report these iterations and integrations (a rod's sums over several solves)."""
+        self.dev.put(self.newton.iters, iters)
+        self.dev.put(self.newton.n_shoot, shots)
 
     def status(self) -> np.ndarray:
         return self.newton.status.numpy()

@@ -10,6 +10,7 @@ batch shape reuse its device arrays (``StaticProblem``).
 
 from __future__ import annotations
 
+import functools
 import threading
 import weakref
 from collections import OrderedDict
@@ -22,7 +23,7 @@ from .build import Tables
 from .homotopy import continuation_steps, load_continuation
 from .kernels import layout
 from .parallel import parallel, split
-from .robot import InputError, Robot, check_displacements, check_slip, check_tensions, require_memory
+from .robot import InputError, Robot, check_command, check_slip, require_memory
 from .solver import Shooting
 from .types import StaticOptions, describe_status
 
@@ -187,23 +188,10 @@ class StaticProblem:
         return self._reference
 
     def command(self, tau: np.ndarray, displacements: np.ndarray | None) -> tuple[np.ndarray, np.ndarray | None]:
-        """Tensions with displaced columns zeroed, and the unstretched length the motor gives each
-        displaced tendon (reference - q), or an InputError where that is not positive."""
-        disp = list(self.robot.displaced)
+        """``available_lengths`` from this problem's reference state."""
         if not self.tables.features.displaced:
             return tau, None
-        q = np.zeros_like(tau) if displacements is None else displacements
-        avail = np.zeros_like(tau)
-        avail[:, disp] = self.reference_lengths()[:, disp] - q[:, disp]
-        bad = avail[:, disp] <= 0
-        if bad.any():
-            b, j = np.argwhere(bad)[0]
-            k = disp[j]
-            raise InputError(f"displacements[{b}][{k}] = {float(q[b, k])!r} m needs a negative tendon length: tendon {k} "
-                             f"holds {self.reference_lengths()[b, k]:.6g} m of unstretched tendon at its reference")
-        tau = tau.copy()
-        tau[:, disp] = 0.0
-        return tau, avail
+        return available_lengths(self.robot, self.reference_lengths(), tau, displacements)
 
     def start(self, tau: np.ndarray, avail: np.ndarray | None) -> np.ndarray:
         """Scaled straight-rod start (B, nu): the displaced tendons at the tensions of the linear
@@ -215,17 +203,13 @@ class StaticProblem:
         guess, z = self.linear_tensions(tau, avail)
         return np.concatenate([t.straight.guess(guess) / scales[:, :6], z], axis=1)
 
-    def linear_tensions(self, tau: np.ndarray, avail: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Tensions (B, K) of the displaced tendons in the linear model of a straight rod, and
-        their scaled unknowns (B, Kd). Tendon k shortens by sum_j C_kj tau_j, C_kj = l_kj (r_k .
-        r_j / EI + 1 / EA) + c_k l_k delta_kj (l_kj = min(l_k, l_j): the bending and the
-        compression of tendon j act where it runs; r at the base), so the displaced set solves
-        C_DD tau_D = free_D - avail_D - C_DT tau_T, with an active set for slack (a negative
-        tension goes slack, the set solved again; pseudo-inverse: four tendons at 90 degrees
-        have a co-contraction mode no length fixes)."""
-        rb, t = self.robot, self.tables
-        B, K = tau.shape
-        disp = np.flatnonzero(t.tmode[0] >= 0)
+    @functools.cached_property
+    def tendon_compliance(self) -> np.ndarray:
+        """(B, K, K) the linear model of a straight rod (``linear_tensions``): tendon k shortens by
+        sum_j C_kj tau_j, C_kj = l_kj (r_k . r_j / EI + 1 / EA) + c_k l_k delta_kj (l_kj =
+        min(l_k, l_j): the bending and the compression of tendon j act where it runs; r at the
+        base). Built once per problem: it depends on the robot alone."""
+        rb, B, K = self.robot, self.B, self.robot.n_tendons
         r = np.broadcast_to(rb.tendon_routing(0.0)[0], (B, K, 3))
         lk = np.broadcast_to(rb.tendon_lengths(), (B, K))
         lkj = np.minimum(lk[:, :, None], lk[:, None, :])
@@ -233,7 +217,18 @@ class StaticProblem:
         ei = np.broadcast_to(sec["kbt"][:, 0], (B,))[:, None, None]
         ea = np.broadcast_to(sec["kse"][:, 2], (B,))[:, None, None]
         C = lkj * (np.einsum("bki,bji->bkj", r, r) / ei + 1.0 / ea)
-        C = C + np.eye(K) * (np.broadcast_to(rb.tendon_columns("compliance"), (B, K)) * lk)[:, :, None]
+        return C + np.eye(K) * (np.broadcast_to(rb.tendon_columns("compliance"), (B, K)) * lk)[:, :, None]
+
+    def linear_tensions(self, tau: np.ndarray, avail: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Tensions (B, K) of the displaced tendons in the linear model of a straight rod
+        (``tendon_compliance``), and their scaled unknowns (B, Kd): the displaced set solves
+        C_DD tau_D = free_D - avail_D - C_DT tau_T, with an active set for slack (a negative
+        tension goes slack, the set solved again; pseudo-inverse: four tendons at 90 degrees
+        have a co-contraction mode no length fixes)."""
+        rb, t = self.robot, self.tables
+        B, K = tau.shape
+        disp = np.flatnonzero(t.tmode[0] >= 0)
+        C = self.tendon_compliance
         is_disp = np.zeros(K, dtype=bool)
         is_disp[disp] = True
         free = np.broadcast_to(t.straight.path, (B, K))
@@ -318,13 +313,13 @@ class StaticProblem:
                 settle_slack(sh, taut, disp, j_of, newton)
             if profile is not None:  # the stick-slip corrector, from the slipping predictor
                 ok = sh.converged()
-                iters, shots = sh.newton.iters.numpy().copy(), sh.newton.n_shoot.numpy().copy()
+                iters, shots = sh.counts()
                 sh.set_memory(slip[lo:hi], profile[lo:hi])
                 sh.solve(np.where(ok[:, None], sh.newton.x.numpy(), x0[lo:hi]), **newton)
                 if len(disp):
                     settle_slack(sh, taut, disp, j_of, newton)
-                sh.dev.put(sh.newton.iters, sh.newton.iters.numpy() + iters)
-                sh.dev.put(sh.newton.n_shoot, sh.newton.n_shoot.numpy() + shots)
+                it, sn = sh.counts()
+                sh.set_counts(it + iters, sn + shots)
             return sh.results()
 
         parts = parallel(run, list(range(len(self.chunks))))
@@ -337,6 +332,26 @@ class StaticProblem:
         return StaticSolution(s=s, options=opts, unknowns=x, **out, **tendon)
 
 
+def available_lengths(robot: Robot, reference: np.ndarray, tau: np.ndarray,
+                      displacements: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """Tensions with the displaced columns zeroed, and the unstretched length the motor gives
+    each displaced tendon, reference - q (B, K) [m] (None: q = 0), or an InputError where that is
+    not positive."""
+    disp = list(robot.displaced)
+    q = np.zeros_like(tau) if displacements is None else displacements
+    avail = np.zeros_like(tau)
+    avail[:, disp] = reference[:, disp] - q[:, disp]
+    bad = avail[:, disp] <= 0
+    if bad.any():
+        b, j = np.argwhere(bad)[0]
+        k = disp[j]
+        raise InputError(f"displacements[{b}][{k}] = {float(q[b, k])!r} m needs a negative tendon length: tendon {k} "
+                         f"holds {reference[b, k]:.6g} m of unstretched tendon at its reference")
+    tau = tau.copy()
+    tau[:, disp] = 0.0
+    return tau, avail
+
+
 SLACK_PASSES = 8
 
 
@@ -347,8 +362,7 @@ def settle_slack(sh: Shooting, taut: np.ndarray, disp: np.ndarray, j_of: np.ndar
     solved again from where it stopped, until the set settles (``SLACK_PASSES``; then flagged
     UNSETTLED). Each solve is smooth in its unknowns; the unknown of a tendon that switches is
     near zero either way. Iterations and integrations add up over the passes."""
-    iters = sh.newton.iters.numpy().astype(np.int64)
-    shots = sh.newton.n_shoot.numpy().astype(np.int64)
+    iters, shots = sh.counts()
     for _ in range(SLACK_PASSES):
         z = sh.newton.x.numpy()[:, j_of]
         ok = sh.converged()
@@ -359,8 +373,9 @@ def settle_slack(sh: Shooting, taut: np.ndarray, disp: np.ndarray, j_of: np.ndar
         taut[:, disp] ^= flip
         sh.set_taut(taut)
         sh.solve(None, mask=rods.astype(np.int32), **newton)
-        iters[rods] += sh.newton.iters.numpy()[rods]
-        shots[rods] += sh.newton.n_shoot.numpy()[rods]
+        it, sn = sh.counts()
+        iters[rods] += it[rods]
+        shots[rods] += sn[rods]
     else:
         z = sh.newton.x.numpy()[:, j_of]
         bad = np.where(taut[:, disp], z < 0, z > 0).any(axis=1)
@@ -368,8 +383,7 @@ def settle_slack(sh: Shooting, taut: np.ndarray, disp: np.ndarray, j_of: np.ndar
             st = sh.newton.status.numpy()
             st[bad] = (st[bad] & ~layout.CONVERGED) | layout.UNSETTLED
             sh.dev.put(sh.newton.status, st)
-    sh.dev.put(sh.newton.iters, iters)
-    sh.dev.put(sh.newton.n_shoot, shots)
+    sh.set_counts(iters, shots)
 
 
 def tendon_results(tables: Tables, out: dict, x: np.ndarray, tau: np.ndarray, slip: np.ndarray,
@@ -451,31 +465,18 @@ def solve_static(robot: Robot, tensions=None, *, displacements=None, slip=None, 
     state, where every tendon holds its pretension. slip: (B, K) or (K,) friction's slip
     direction per tendon, +1 (pulled, the default) or -1 (released). history: the previous
     solution of a quasi-static sequence (friction): each tendon keeps its previous tension where
-    friction can hold it (stick) and slips where it cannot (tdcr_warp.tendons); slip is then
+    friction can hold it (stick) and slips where it cannot (README, *Tendons*); slip is then
     not used. options / overrides: :class:`StaticOptions` fields (nodes, integrator, model, ...).
     device: "cpu" or "cuda:0" (None: Warp's default). initial: an earlier solution of the
     same batch size to warm-start from (its unknowns and Jacobian).
     """
     opts = replace(options or StaticOptions(), **overrides)
-    B = robot.batch_size
-    for arr in (tensions, displacements, slip):
-        a = np.asarray(arr) if arr is not None else None
-        if a is not None and a.ndim == 2:
-            B = max(B, a.shape[0])
-    tau = check_tensions(robot, np.zeros((B, robot.n_tendons)) if tensions is None else tensions)
+    tau, q = check_command(robot, tensions, displacements,
+                           None if slip is None or np.ndim(slip) != 2 else max(robot.batch_size, np.shape(slip)[0]))
     B = tau.shape[0]
-    if robot.displaced:
-        disp = list(robot.displaced)
-        if (tau[:, disp] != 0).any():
-            b, j = np.argwhere(tau[:, disp] != 0)[0]
-            raise InputError(f"tensions[{b}][{disp[j]}] = {float(tau[b, disp[j]])!r}: tendon {disp[j]} is under displacement "
-                             "control (command it with displacements)")
-    if displacements is not None and not robot.displaced:
-        raise InputError("displacements: no tendon of this robot is under displacement control")
-    q = None if displacements is None else check_displacements(robot, displacements, B)
     sg = None if slip is None else check_slip(robot, slip, B)
     if opts.model == "constant_curvature":
-        if robot.displaced or any(np.any(t.friction > 0) for t in robot.tendons):
+        if robot.displaced or robot.has_friction:
             raise InputError("solver model 'constant_curvature' has no displacement control or friction: "
                              "use model 'coupled' or 'point'")
         return _constant_curvature(robot, tau, opts)
