@@ -38,6 +38,7 @@ SINGULAR = 8
 STALLED = 16
 PRECISION_LIMITED = 32  # with CONVERGED: stopped at the round-off floor, residual above tol
 UNSETTLED = 64  # displacement control: the taut / slack set of the tendons did not settle
+UNSTABLE = 128  # with CONVERGED: an equilibrium, but an unstable one (tdcr_warp/stability.py)
 
 STATUS_NAMES = {
     CONVERGED: "converged",
@@ -47,6 +48,7 @@ STATUS_NAMES = {
     STALLED: "line search stalled",
     PRECISION_LIMITED: "precision-limited (residual at round-off, above tol)",
     UNSETTLED: "taut/slack set of the displaced tendons did not settle",
+    UNSTABLE: "unstable equilibrium",
 }
 
 # ``dyn`` array, shape (1 or B, DYN_WIDTH): dynamics parameters, SI units.

@@ -329,10 +329,12 @@ def make_shooting_kernels(dtype, integrator: str, model: str, dynamic: bool = Fa
             nt.begin(nw, b, x_from, fresh_jacobian)
 
     @wp.kernel(module=modules["evaluate"], enable_backward=False)
-    def evaluate_kernel(md: Model, ct: Control, sp: Step, x: wp.array(dtype=vecu), out: Nodes):
-        """One integration per rod from x, storing the shape (and the dynamics slots)."""
+    def evaluate_kernel(md: Model, ct: Control, sp: Step, x: wp.array(dtype=vecu), out: Nodes,
+                        res: wp.array(dtype=vecu)):
+        """One integration per rod from x, storing the shape (and the dynamics slots) and the
+        residual (the probes of a sensitivity, tdcr_warp/sensitivity.py)."""
         b = wp.tid()
-        shoot(x[b], md, ct, sp, b, 1, 0, out)
+        res[b] = shoot(x[b], md, ct, sp, b, 1, 0, out)
 
     return SimpleNamespace(solve=solve_kernel, probe=probe_kernel, update=update_kernel, finish=finish_kernel,
                            begin=begin_kernel, evaluate=evaluate_kernel, Model=Model, Control=Control, Step=Step,

@@ -10,6 +10,7 @@ the host only reads it.
 
 from __future__ import annotations
 
+import functools
 import time
 
 import numpy as np
@@ -127,10 +128,40 @@ class Shooting:
         self.coarse_jacobian = self.coarse_allowed if profile is None else 0
 
     def evaluate(self, x: np.ndarray) -> None:
-        """One integration per rod from scaled unknowns x (b, 6), storing shapes and slots."""
+        """One integration per rod from scaled unknowns x (b, nu), storing shapes and slots."""
         self.dev.put(self.x_in, x)
         wp.launch(self.kern.evaluate, dim=self.b, device=self.device,
-                  inputs=[self.model, self.control, self.step, self.x_in, self.nodes])
+                  inputs=[self.model, self.control, self.step, self.x_in, self.nodes, self.probe_res])
+
+    @functools.cached_property
+    def probe_res(self) -> wp.array:
+        """(b,) residuals of the last ``evaluate`` or ``probe``."""
+        return wp.zeros(self.b, dtype=self.kern.vecu, device=self.device)
+
+    @functools.cached_property
+    def probe_nodes(self):
+        """The shapes of a probe (``probe``), apart from the solution's ``nodes``."""
+        return make_state(self.kern, self.dev, self.b, self.n1, self.dynamic)
+
+    def probe(self, x: np.ndarray, model=None, *, shapes: bool = False) -> dict[str, np.ndarray]:
+        """One integration per rod from scaled unknowns x (b, nu) under ``model`` (default this
+        problem's; a perturbed Model of the same shape) and the current Control, leaving the
+        solution untouched (statics: with friction the trial point's tension profile is
+        overwritten, so read ``results`` first). Returns float64 host copies of the residual
+        ``res`` (b, nu), the tip ``p`` (b, 3) and ``R`` (b, 3, 3) and with ``shapes`` the node
+        arrays ``P``, ``Rn``, ``n``, ``m`` (b, N+1, ...)."""
+        kernel = self.kern.evaluate
+        kernel.module.load(self.device, 1 if wp.get_device(self.device).is_cpu else 256)
+        self.dev.put(self.x_in, x)
+        out = self.probe_nodes
+        wp.launch(kernel, dim=self.b, device=self.device,
+                  inputs=[model or self.model, self.control, self.step, self.x_in, out, self.probe_res])
+        f64 = np.float64
+        P, Rn = out.p.numpy().astype(f64), out.R.numpy().astype(f64)
+        got = {"res": self.probe_res.numpy().astype(f64), "p": P[:, -1], "R": Rn[:, -1]}
+        if shapes:
+            got |= {"P": P, "Rn": Rn, "n": out.n.numpy().astype(f64), "m": out.m.numpy().astype(f64)}
+        return got
 
     def solve(self, start=None, *, tol: float, max_iter: int, max_step: float, broyden: bool,
               mask: np.ndarray | None = None, fresh_jacobian: bool = True) -> None:

@@ -24,7 +24,9 @@ from .homotopy import continuation_steps, load_continuation
 from .kernels import layout
 from .parallel import parallel, split
 from .robot import InputError, Robot, check_command, check_slip, require_memory
+from .sensitivity import linearise, parameter_tables
 from .solver import Shooting
+from .stability import jacobi_index
 from .types import StaticOptions, describe_status
 
 __all__ = ["StaticOptions", "StaticProblem", "StaticSolution", "reference_lengths", "solve_static"]
@@ -45,6 +47,18 @@ class StaticSolution:
     scaled shooting Jacobian (reused by a warm start); unknowns (B, nu): the scaled shooting
     unknowns (nu = 6 + one per displacement-controlled tendon). tip_error_estimate (B,) [m]:
     with ``error_estimate`` only.
+
+    Sensitivities (``sensitivities``; NaN for rods that did not converge; the tip pose is
+    [p(L) [m], theta [rad]], theta the world-frame rotation vector of a small tip rotation):
+    tip_jacobian (B, 6, K) d pose / d command, per tendon its tension [N] under tension control
+    or its motor displacement [m] under displacement control; tip_compliance (B, 6, 6) d pose /
+    d [F_tip [N], M_tip [N m]] (world frame); parameter_jacobian (B, 6, P) d pose / d parameter
+    (units of each parameter, ``parameter_names``). Stability (``stability``): stability_index
+    (B,) the number of unstable directions (0: stable; -1: not assessed: not converged,
+    friction, or point-model tendons); lagrangian_error (B,) the check of the test (small:
+    trustworthy); with "stable" also branch (B,) int8 (0: as solved, 1: the solve landed on an
+    unstable equilibrium and a restart found this stable one, -1: unstable, no stable one
+    found) and multiple_stable (B,) bool (restarts found distinct stable equilibria).
 
     Per tendon (B, K): tendon_tension_base (at the motor side, s = 0) and tendon_tension_end
     (just before its termination) [N]. With tendon states (displacement control or friction;
@@ -85,6 +99,20 @@ class StaticSolution:
     slip_state: np.ndarray | None = None
     tension_slots: np.ndarray | None = field(default=None, repr=False)
     tip_error_estimate: np.ndarray | None = None
+    tip_jacobian: np.ndarray | None = None
+    tip_compliance: np.ndarray | None = None
+    parameter_jacobian: np.ndarray | None = None
+    parameter_names: tuple = ()
+    stability_index: np.ndarray | None = None
+    lagrangian_error: np.ndarray | None = None
+    branch: np.ndarray | None = None
+    multiple_stable: np.ndarray | None = None
+
+    @property
+    def stable(self) -> np.ndarray | None:
+        """(B,) bool: converged to an equilibrium the Jacobi test found stable (None without
+        ``stability``; False also where it was not assessed, stability_index -1)."""
+        return None if self.stability_index is None else self.converged & (self.stability_index == 0)
 
     @property
     def tip_position(self) -> np.ndarray:
@@ -252,8 +280,14 @@ class StaticProblem:
         return guess, z
 
     def solve(self, tau: np.ndarray, initial: StaticSolution | None, displacements: np.ndarray | None = None,
-              slip: np.ndarray | None = None, history: StaticSolution | None = None) -> StaticSolution:
+              slip: np.ndarray | None = None, history: StaticSolution | None = None, *,
+              sensitivities: bool = False, stability: str = "off", parameters: tuple = ()) -> StaticSolution:
+        """One solve of the batch; with ``sensitivities`` or ``stability`` (see StaticOptions)
+        also the rods' sensitivities (``parameters``: robot field names, tdcr_warp.sensitivity)."""
         opts, tables, B = self.opts, self.tables, self.B
+        ptables = parameter_tables(self.robot, tables, parameters, opts.precision, opts.nodes, opts.specialize,
+                                   opts.kink_loads, opts.tendon_states) if parameters else []
+        linear = sensitivities or stability != "off" or bool(parameters)
         nu = tables.nu
         scales = tables.scale_rows(B)
         tau, avail = self.command(tau, displacements)
@@ -320,7 +354,12 @@ class StaticProblem:
                     settle_slack(sh, taut, disp, j_of, newton)
                 it, sn = sh.counts()
                 sh.set_counts(it + iters, sn + shots)
-            return sh.results()
+            res = sh.results()
+            if linear:
+                res |= self._linearise(sh, lo, hi, tau[lo:hi], taut, res, ptables, stability)
+                if stability == "stable":
+                    res = self._stable_branch(sh, lo, hi, tau[lo:hi], taut, res, ptables, newton, disp, j_of)
+            return res
 
         parts = parallel(run, list(range(len(self.chunks))))
         out = parts[0] if len(parts) == 1 else {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
@@ -329,7 +368,84 @@ class StaticProblem:
         grid = tables.grid
         s = np.broadcast_to(grid, (B, grid.shape[1])).astype(np.float64)
         tendon = tendon_results(tables, out, x, tau, slip, profile is not None)
+        if linear:
+            bad = ~out["converged"]
+            for k in ("tip_jacobian", "tip_compliance", "parameter_jacobian"):
+                out[k][bad] = np.nan
+            out["parameter_names"] = tuple(parameters)
+            if stability != "off":
+                st = out["stability_index"]
+                out["status"] = np.where(st > 0, out["status"] | layout.UNSTABLE, out["status"]).astype(
+                    out["status"].dtype)
         return StaticSolution(s=s, options=opts, unknowns=x, **out, **tendon)
+
+    def _linearise(self, sh: Shooting, lo: int, hi: int, tau: np.ndarray, taut: np.ndarray, res: dict,
+                   ptables: list, stability: str) -> dict:
+        """The sensitivities and (``stability``) the Jacobi index of rods lo:hi from their
+        solution ``res`` (the base of the probes: its shapes and residual)."""
+        t, o = self.tables, self.opts
+        base = {"res": sh.newton.r.numpy().astype(np.float64), "p": res["positions"][:, -1],
+                "R": res["rotations"][:, -1], "P": res["positions"], "Rn": res["rotations"], "n": res["n"],
+                "m": res["m"]}
+        K = tau.shape[1]
+        assess = stability != "off" and not t.features.friction and (o.model == "coupled" or K == 0)
+        lin = linearise(sh, tau, t, lo, hi, o.precision, ptables, base=base, shapes=assess)
+        b = hi - lo
+        out = {k: lin[k] for k in ("tip_jacobian", "tip_compliance", "parameter_jacobian")}
+        if stability != "off":
+            index, lag = np.full(b, -1, dtype=np.int64), np.full(b, np.nan)
+            if assess:
+                tension = res["tendons"][..., layout.TO_BASE] if "tendons" in res else tau
+                index, lag, _ = jacobi_index(sh, lin, t, self.robot, lo, hi, tension, o.precision,
+                                             o.rod == "kirchhoff", o.model == "coupled",
+                                             taut if t.features.displaced else None)
+                index = np.where(res["converged"], index, -1)
+            out |= {"stability_index": index, "lagrangian_error": lag}
+        return out
+
+    def _stable_branch(self, sh: Shooting, lo: int, hi: int, tau: np.ndarray, taut: np.ndarray, res: dict,
+                       ptables: list, newton: dict, disp: np.ndarray, j_of: np.ndarray) -> dict:
+        """Rods whose equilibrium is unstable are solved again from restarts (``RESTARTS``: the
+        solution with an added base moment about each bending axis, both ways, of growing
+        size); the first stable equilibrium found is returned (branch 1), distinct
+        stable ones are reported (multiple_stable); a rod with none keeps its unstable
+        solution (branch -1). Iterations and integrations add up over the restarts."""
+        b = hi - lo
+        bad = res["stability_index"] > 0
+        branch = np.zeros(b, dtype=np.int8)
+        out = {k: (v.copy() if isinstance(v, np.ndarray) else v) for k, v in res.items()}
+        if bad.any():
+            x_star = res["x"]
+            L = np.broadcast_to(self.tables.rows("rod", lo, hi)[:, layout.LENGTH], (b,))
+            tips: list[list[np.ndarray]] = [[] for _ in range(b)]
+            lam_l = np.sqrt(np.maximum(1.0, -x_star[:, 2]))  # x[2] = n_z(0) L^2 / EI
+            for j, bend in RESTARTS:
+                start = x_star.copy()
+                start[:, j] += bend * lam_l
+                sh.solve(start, mask=bad.astype(np.int32), **newton)
+                if len(disp):
+                    settle_slack(sh, taut.copy(), disp, j_of, newton)
+                it, sn = sh.counts()
+                out["iterations"] = out["iterations"] + np.where(bad, it, 0)
+                out["integrations"] = out["integrations"] + np.where(bad, sn, 0)
+                got = sh.results()
+                got |= self._linearise(sh, lo, hi, tau, taut, got, ptables, "check")
+                ok = bad & got["converged"] & (got["stability_index"] == 0)
+                for i in np.flatnonzero(ok):
+                    tip = got["positions"][i, -1]
+                    if all(np.linalg.norm(tip - t) > DISTINCT * L[i] for t in tips[i]):
+                        tips[i].append(tip)
+                take = ok & (branch == 0)
+                for k, v in got.items():
+                    if isinstance(v, np.ndarray) and k not in ("iterations", "integrations"):
+                        out[k][take] = v[take]
+                branch[take] = 1
+            branch[bad & (branch == 0)] = -1
+            out["multiple_stable"] = np.array([len(t) > 1 for t in tips])
+        else:
+            out["multiple_stable"] = np.zeros(b, dtype=bool)
+        out["branch"] = branch
+        return out
 
 
 def available_lengths(robot: Robot, reference: np.ndarray, tau: np.ndarray,
@@ -353,6 +469,12 @@ def available_lengths(robot: Robot, reference: np.ndarray, tau: np.ndarray,
 
 
 SLACK_PASSES = 8
+# Restarts of an unstable rod: (scaled base-moment unknown, added moment in units of
+# max(1, lambda L) EI / L, lambda L = sqrt(P L^2 / EI) for the axial compression P at the
+# base). The bent branch of a compressed cantilever has a base moment of about 0.8 to 2
+# lambda L EI / L (the elastica from 1.1 to 10 times the buckling load).
+RESTARTS = tuple((j, sign * size) for size in (1.0, 2.0, 4.0) for j in (3, 4) for sign in (1.0, -1.0))
+DISTINCT = 1e-6  # stable equilibria whose tips are this many rod lengths apart are distinct
 
 
 def settle_slack(sh: Shooting, taut: np.ndarray, disp: np.ndarray, j_of: np.ndarray, newton: dict) -> None:
@@ -424,7 +546,7 @@ def _problem(robot: Robot, B: int, opts: StaticOptions, device) -> tuple[StaticP
     Returns (problem, cached)."""
     if B * (opts.nodes + 1) > CACHE_NODE_RODS:
         return StaticProblem(robot, B, opts, device), False
-    key = (id(robot), B, opts if not opts.error_estimate else replace(opts, error_estimate=False), device.alias)
+    key = (id(robot), B, replace(opts, error_estimate=False, sensitivities=False, stability="off"), device.alias)
     with _cache_lock:
         hit = _cache.get(key)
         if hit is not None and hit[0]() is robot and hit[1].lock.acquire(blocking=False):
@@ -455,7 +577,7 @@ def reference_lengths(robot: Robot, *, options: StaticOptions | None = None, dev
 
 def solve_static(robot: Robot, tensions=None, *, displacements=None, slip=None, history: StaticSolution | None = None,
                  options: StaticOptions | None = None, device: str | None = None,
-                 initial: StaticSolution | None = None, **overrides) -> StaticSolution:
+                 initial: StaticSolution | None = None, parameters=None, **overrides) -> StaticSolution:
     """Solve the statics of a batch of rods.
 
     robot: the batch (shared or per-rod fields); tensions: (B, K) or (K,) [N], each >= 0 (None:
@@ -468,7 +590,10 @@ def solve_static(robot: Robot, tensions=None, *, displacements=None, slip=None, 
     friction can hold it (stick) and slips where it cannot (README, *Tendons*); slip is then
     not used. options / overrides: :class:`StaticOptions` fields (nodes, integrator, model, ...).
     device: "cpu" or "cuda:0" (None: Warp's default). initial: an earlier solution of the
-    same batch size to warm-start from (its unknowns and Jacobian).
+    same batch size to warm-start from (its unknowns and Jacobian). parameters: robot fields
+    to differentiate the tip pose by (``parameter_jacobian``), e.g. "youngs_modulus",
+    "tendons[0].offset[1]", "tip_force[0]" (tdcr_warp.sensitivity; under displacement control
+    the motor's given length is held, not the displacement).
     """
     opts = replace(options or StaticOptions(), **overrides)
     tau, q = check_command(robot, tensions, displacements,
@@ -479,18 +604,23 @@ def solve_static(robot: Robot, tensions=None, *, displacements=None, slip=None, 
         if robot.displaced or robot.has_friction:
             raise InputError("solver model 'constant_curvature' has no displacement control or friction: "
                              "use model 'coupled' or 'point'")
+        if opts.sensitivities or opts.stability != "off" or parameters:
+            raise InputError("solver model 'constant_curvature' has no sensitivities or stability test: use model "
+                             "'coupled' or 'point'")
         return _constant_curvature(robot, tau, opts)
     dev = wp.get_device(device)
     require_memory(B * (opts.nodes + 1) * 400.0, f"nodes = {opts.nodes} for {B} rods: the shapes")
     problem, locked = _problem(robot, B, opts, dev)
     try:
-        sol = problem.solve(tau, initial, q, sg, history)
+        sol = problem.solve(tau, initial, q, sg, history, sensitivities=opts.sensitivities,
+                            stability=opts.stability, parameters=tuple(parameters or ()))
     finally:
         if locked:
             problem.lock.release()
     if opts.error_estimate:
         coarse = solve_static(robot, tau, displacements=q, slip=sg,
-                              options=replace(opts, nodes=max(1, opts.nodes // 2), error_estimate=False),
+                              options=replace(opts, nodes=max(1, opts.nodes // 2), error_estimate=False,
+                                              sensitivities=False, stability="off"),
                               device=device, initial=sol if history is None else None)
         order = {"euler": 1, "midpoint": 2, "rk4": 4}[opts.integrator]
         est = 2.0 * np.linalg.norm(sol.tip_position - coarse.tip_position, axis=1) / (2**order - 1)

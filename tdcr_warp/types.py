@@ -18,6 +18,7 @@ __all__ = ["DRIVERS", "PRECISIONS", "PRESETS", "StaticOptions", "describe_status
 
 PRECISIONS = ("float64", "float32")
 DRIVERS = ("fused", "probes")
+STABILITY = ("off", "check", "stable")
 
 
 def status_names(status: int) -> list[str]:
@@ -70,6 +71,12 @@ class StaticOptions:
     tendon_states: integrate every tendon's path length and unstretched length (and report
     them) also where no tendon is under displacement control or has friction (there they are
     integrated anyway).
+    sensitivities: also return the tip Jacobian of the commands and the tip compliance per rod
+    (tdcr_warp/sensitivity.py; one probe integration per unknown and per tension-controlled
+    tendon). stability: "off", "check" (the Jacobi test of every converged rod:
+    tdcr_warp/stability.py; an unstable one is flagged UNSTABLE) or "stable" (check, and where
+    an equilibrium is unstable search for a stable one by restarts, reporting which branch was
+    returned).
     """
 
     nodes: int = 50
@@ -88,6 +95,8 @@ class StaticOptions:
     driver: str | None = None
     kink_loads: bool = True
     tendon_states: bool = False
+    sensitivities: bool = False
+    stability: str = "off"
 
     def __post_init__(self):
         def integer(v, low, high=10**9):
@@ -116,6 +125,8 @@ class StaticOptions:
             ("driver", self.driver is None or one_of(self.driver, DRIVERS), f"one of {DRIVERS}"),
             ("kink_loads", isinstance(self.kink_loads, bool), "true or false"),
             ("tendon_states", isinstance(self.tendon_states, bool), "true or false"),
+            ("sensitivities", isinstance(self.sensitivities, bool), "true or false"),
+            ("stability", one_of(self.stability, STABILITY), f"one of {STABILITY}"),
         ]
         for name, ok, what in checks:
             if not ok:

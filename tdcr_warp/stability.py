@@ -1,0 +1,221 @@
+"""Elastic stability of a solved static equilibrium: the Jacobi (conjugate-point) test.
+
+A rod clamped at s = 0 with a free, loaded tip is stable when the second variation of its
+energy is positive definite. For conservative loads (dead forces and gravity; tendons of
+constant tension without friction, whose potential is tau times the path length) the number of
+negative directions of the second variation (its index) equals the number of conjugate points
+of the clamp: the arc lengths sigma in (0, L) where a Jacobi field (a solution of the
+linearised equilibrium equations) that satisfies the tip's boundary condition has zero
+position and rotation at sigma (the rod [sigma, L] clamped at sigma would buckle). The clamp
+is the end that moves, so every crossing has the same sign (the Legendre condition: the
+stiffness, and the tendons' convex path-length terms, are positive definite), and the index
+counts crossings with their multiplicity (a round rod buckles in two planes at once).
+
+The fields come from the shooting problem itself: the 12-dimensional solution space of the
+linearised equations is spanned by the 6 probes of the base wrench (tdcr_warp/sensitivity.py),
+3 translations of the whole rod (exact: nothing depends on where the rod is) and 3 rotations
+of it (exact for the rod and its tendons; dead distributed and point loads are rotated back by
+one probe each). The tip condition (the momenta vanish at L: no change of the tip load) picks a
+6-dimensional subspace, a Lagrangian plane (U(s), V(s)): U the position and rotation, V the
+conjugate momenta, the change of the total internal force n + sum tau t and of the total
+moment less half the rotation crossed with it (the term of the rotations' second order). The
+conjugate points are where U is singular: where the unitary W = (V + iU)(V - iU)^-1 has an
+eigenvalue 1; the index counts the eigenvalues of W passing 1, tracked node by node from the tip
+to the base. U^T V stays symmetric along s (the plane is Lagrangian): ``lagrangian_error``
+measures it, a check of the whole construction.
+
+Displacement control adds the stiffness of the wires: the second variation gains sum kappa
+(d ell)^2. With J the shooting Jacobian, the index is that under tension control at the same
+tensions less the count of positive eigenvalues of the Schur complement of the taut tendons'
+length residuals (Haynsworth inertia additivity; the complement is -(A Q^-1 A^T + c l) up to a
+positive factor). Not assessed (index -1): friction (not conservative) and the point model's
+tendon loads (follower forces).
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from .build import Tables, _cross, put_model
+from .kernels import layout
+from .robot import Robot
+from .sensitivity import PROBE_REL, vee_rate
+
+__all__ = ["jacobi_index", "node_routing", "totals"]
+
+WIRE_TOL = 1e-6  # relative size of a positive eigenvalue of the wires' Schur complement
+CROSS_TOL = 1e-7  # rad: an eigenphase within this of 1 at the clamp is neutral (a zero mode), not a crossing
+
+
+def node_routing(robot: Robot, grid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """r(s) and r'(s) (1|B, N+1, K, 3) of every tendon at the nodes ``grid`` (1|B, N+1)."""
+    rs, drs = [], []
+    for j in range(grid.shape[1]):
+        s = np.broadcast_to(grid[:, j:j + 1], (grid.shape[0], max(robot.n_tendons, 1)))[:, :robot.n_tendons]
+        r, dr, _ = robot.tendon_routing(s)
+        rs.append(r)
+        drs.append(dr)
+    return np.stack(rs, axis=1), np.stack(drs, axis=1)
+
+
+def totals(st: dict, rod: np.ndarray, tension: np.ndarray, route, present: np.ndarray, kirchhoff: bool):
+    """The total internal force n + sum_k tau_k t_k and moment m + sum_k tau_k (R r_k) x t_k at
+    every node (b, N+1, 3) of a shape ``st`` (P, Rn, n, m), with the tendons that run there
+    (present (1|b, N+1, K)); t_k the unit tangent of tendon k's path, from the strains."""
+    R, n, m = st["Rn"], st["n"], st["m"]
+    if route is None:
+        return n, m
+    r, dr = route
+    rtn = np.einsum("bsji,bsj->bsi", R, n)
+    rtm = np.einsum("bsji,bsj->bsi", R, m)
+    kse, kbt = rod[:, None, layout.KSE:layout.KSE + 3], rod[:, None, layout.KBT:layout.KBT + 3]
+    ustar = rod[:, None, layout.USTAR:layout.USTAR + 3]
+    e3 = np.array([0.0, 0.0, 1.0])
+    v = np.broadcast_to(e3, rtn.shape) if kirchhoff else rtn / kse + e3
+    u = rtm / kbt + ustar
+    pb = _cross(u[:, :, None], r) + dr + v[:, :, None]
+    t = np.einsum("bsij,bskj->bski", R, pb / np.linalg.norm(pb, axis=-1, keepdims=True))
+    w = (tension[:, None, :] * present)[..., None]
+    arm = np.einsum("bsij,bskj->bski", R, np.broadcast_to(r, pb.shape))
+    return n + (w * t).sum(axis=2), m + (w * _cross(arm, t)).sum(axis=2)
+
+
+def _field(st0: dict, st1: dict, tot0, tot1, h) -> np.ndarray:
+    """(b, N+1, 12) a Jacobi field from two shapes h apart: [zeta, eta, P_zeta, P_eta]."""
+    h = h[:, None, None]
+    eta = vee_rate(st0["Rn"], st1["Rn"], h[..., None])
+    dn = (tot1[0] - tot0[0]) / h
+    dm = (tot1[1] - tot0[1]) / h
+    return np.concatenate([(st1["P"] - st0["P"]) / h, eta, dn, dm - 0.5 * _cross(eta, tot0[1])], axis=-1)
+
+
+def _rotated_loads(tables: Tables, axis: int, eps: float) -> Tables:
+    """The tables with gravity and the point forces rotated by -eps about world axis ``axis``."""
+    e = np.zeros(3)
+    e[axis] = 1.0
+    rod = np.array(tables.rod)
+    fe = rod[:, layout.FE:layout.FE + 3]
+    rod[:, layout.FE:layout.FE + 3] = fe - eps * _cross(np.broadcast_to(e, fe.shape), fe)
+    pf = np.array(tables.pforce)
+    if pf.size:
+        pf = pf - eps * _cross(np.broadcast_to(e, pf.shape), pf)
+    return replace(tables, rod=rod, pforce=pf)
+
+
+def jacobi_index(sh, lin: dict, tables: Tables, robot: Robot, lo: int, hi: int, tension: np.ndarray,
+                 precision: str, kirchhoff: bool, coupled: bool, taut: np.ndarray | None):
+    """Per rod of the chunk: the index of the second variation (0: stable), the Lagrangian
+    check max |U^T V - V^T U| / max(|U|, |V|)^2 over the nodes (Frobenius norms of the
+    symplectically scaled fields), and the eigenphases' smallest
+    distance from a crossing at the clamp (a margin [rad]). ``lin``: linearise(..., shapes=True);
+    tension (b, K) the tendons' tensions [N]; taut (b, K) or None: the taut displaced tendons."""
+    base, fields, hx = lin["base"], lin["fields"], lin["field_steps"]
+    b, N1 = base["P"].shape[:2]
+    rod = np.broadcast_to(tables.rows("rod", lo, hi), (b, layout.ROD_WIDTH))
+    route = None
+    K = tension.shape[1]
+    if K and coupled:
+        route = tuple(a[lo:hi] if a.shape[0] > 1 else a for a in node_routing(robot, tables.grid))
+    term = np.broadcast_to(tables.rows("term_node", lo, hi), (b, K))
+    present = (np.arange(N1)[None, :, None] <= term[:, None, :]).astype(np.float64)
+
+    def tot(st):
+        return totals(st, rod, tension, route, present, kirchhoff)
+
+    t0 = tot(base)
+    cols = []
+    for i in range(3):  # translations
+        f = np.zeros((b, N1, 12))
+        f[:, :, i] = 1.0
+        cols.append(f)
+    loads = bool(np.any(tables.rod[:, layout.FE:layout.FE + 3] != 0) or np.any(tables.pforce != 0))
+    x = sh.newton.x.numpy().astype(np.float64)
+    eps = PROBE_REL[precision]
+    for i in range(3):  # rotations of the rod, its tendons and its base wrench; dead loads rotated back
+        e = np.zeros(3)
+        e[i] = 1.0
+        eb = np.broadcast_to(e, base["P"].shape)
+        f = np.concatenate([_cross(eb, base["P"]), eb, _cross(eb, t0[0]),
+                            _cross(eb, t0[1]) - 0.5 * _cross(eb, t0[1])], axis=-1)
+        if loads:
+            pr = sh.probe(x, put_model(sh.kern, sh.dev, _rotated_loads(tables, i, eps), lo, hi), shapes=True)
+            f = f + _field(base, pr, t0, tot(pr), np.full(b, eps))
+            lin["integrations"] = lin["integrations"] + 1
+        cols.append(f)
+    for j in range(6):  # the base wrench (a probe above x*, and below it for central differences)
+        up, down = fields[j]
+        f = _field(base, up, t0, tot(up), hx[:, j])
+        if down is not None:
+            f = 0.5 * (f + _field(base, down, t0, tot(down), -hx[:, j]))
+        cols.append(f)
+    Y = np.stack(cols, axis=-1)  # (b, N+1, 12, 12)
+    L = rod[:, layout.LENGTH]
+    a = np.sqrt(rod[:, layout.KBT] / L)  # symplectic scaling: [zeta a / L, eta a, P_zeta L / a, P_eta / a]
+    sc = np.concatenate([np.repeat((a / L)[:, None], 3, 1), np.repeat(a[:, None], 3, 1),
+                         np.repeat((L / a)[:, None], 3, 1), np.repeat((1 / a)[:, None], 3, 1)], axis=1)
+    Y = Y * sc[:, None, :, None]
+    Y = Y / np.linalg.norm(Y[:, :1], axis=2, keepdims=True).clip(1e-300)  # columns of unit size at the base
+    _, _, vh = np.linalg.svd(Y[:, -1, 6:, :])  # the tip: momenta zero
+    c = np.swapaxes(vh[:, 6:, :], 1, 2)  # (b, 12, 6) its null space
+    Z = np.einsum("bsij,bjk->bsik", Y, c)
+    U, V = Z[:, :, :6], Z[:, :, 6:]
+    UV = np.einsum("bsji,bsjk->bsik", U, V)
+    size = np.maximum(np.linalg.norm(U, axis=(2, 3)), np.linalg.norm(V, axis=(2, 3))).max(axis=1) ** 2
+    lag = np.linalg.norm(UV - np.swapaxes(UV, 2, 3), axis=(2, 3)).max(axis=1) / size.clip(1e-300)
+    W = np.linalg.solve(np.swapaxes(V - 1j * U, 2, 3), np.swapaxes(V + 1j * U, 2, 3))
+    lam = np.linalg.eigvals(np.swapaxes(W, 2, 3))  # (b, N+1, 6)
+    index, margin = _count_crossings(lam[:, ::-1])
+    if taut is not None and taut.any():
+        index = index - _wire_stabilised(lin["unknowns_jacobian"], tables, taut)
+    return index, lag, margin
+
+
+def _count_crossings(lam: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Eigenvalues (b, S, 6) of W from the tip (s = L) to the clamp: the number of times one
+    passes 1 (tracked by nearest matching from node to node, phases unwrapped), and the smallest
+    distance of a phase from 1 at the clamp [rad]."""
+    b, S, n = lam.shape
+    cur = lam[:, 0]
+    psi = np.angle(cur)
+    count = np.zeros(b, dtype=np.int64)
+    rows = np.arange(b)
+    for k in range(1, S):
+        new = lam[:, k]
+        d = np.abs(np.angle(new[:, None, :] / cur[:, :, None]))  # (b, old, new)
+        order = np.empty((b, n), dtype=np.int64)
+        for _ in range(n):  # greedy nearest pairs
+            flat = d.reshape(b, -1).argmin(axis=1)
+            i, j = flat // n, flat % n
+            order[rows, i] = j
+            d[rows, i, :] = np.inf
+            d[rows, :, j] = np.inf
+        nxt = np.take_along_axis(new, order, axis=1)
+        step = np.angle(nxt / cur)
+        before = np.floor((psi + CROSS_TOL) / (2 * np.pi))
+        psi = psi + step
+        count += np.abs(np.floor((psi + CROSS_TOL) / (2 * np.pi)) - before).astype(np.int64).sum(axis=1)
+        cur = nxt
+    margin = np.abs(np.angle(lam[:, -1])).min(axis=1)
+    return count, margin
+
+
+def _wire_stabilised(J: np.ndarray, tables: Tables, taut: np.ndarray) -> np.ndarray:
+    """Per rod, the positive eigenvalues of the Schur complement of the taut displaced tendons'
+    rows and columns in the scaled shooting Jacobian J (b, nu, nu): the unstable directions the
+    wires' stiffness removes (eigenvalues above WIRE_TOL times the straight rod's slope, the
+    scale of the complement: an indeterminate tension, inextensible rod and wire, has none)."""
+    disp = np.flatnonzero(tables.tmode[0] >= 0)
+    j_of = 6 + tables.tmode[0, disp]
+    out = np.zeros(J.shape[0], dtype=np.int64)
+    slope = np.broadcast_to(tables.tendon[..., layout.T_SLACK_SLOPE], (J.shape[0], tables.tendon.shape[1]))[:, disp]
+    for i in range(J.shape[0]):
+        sel = j_of[taut[i, disp]]
+        if not len(sel):
+            continue
+        A, Bm = J[i, :6, :6], J[i, :6][:, sel]
+        C, D = J[i, sel][:, :6], J[i][np.ix_(sel, sel)]
+        S = D - C @ np.linalg.solve(A, Bm)
+        out[i] = int((np.linalg.eigvalsh(0.5 * (S + S.T)) > WIRE_TOL * slope[i, sel - 6].min()).sum())
+    return out

@@ -1,0 +1,123 @@
+"""The elastic stability verdict (tdcr_warp/stability.py) and the search for the stable branch,
+against closed forms: Euler's buckling loads of a cantilever, the post-buckled elastica, and
+the buckling loads of a tendon-loaded rod under tension and under displacement control."""
+
+import numpy as np
+import pytest
+from scipy.optimize import brentq
+from scipy.special import ellipe, ellipk
+
+import tdcr_warp as tw
+from tdcr_warp.kernels import layout
+
+E, NU, RB, L = 190e9, 0.3, 1e-3, 0.5
+EI = E * np.pi * RB**4 / 4
+P_CR = np.pi**2 * EI / (4 * L**2)  # Euler: a clamped-free column buckles at (pi / 2)^2 EI / L^2
+OFF = 0.01
+THREE = [(OFF * np.cos(a), OFF * np.sin(a)) for a in (0.0, 2 * np.pi / 3, 4 * np.pi / 3)]
+
+
+def robot(loads, tendons=(), **kw):
+    """One rod per compressive tip load in ``loads`` [units of P_CR], plus a lateral part."""
+    lat = kw.pop("lateral", 0.0)
+    F = np.zeros((len(loads), 3))
+    F[:, 2] = -np.asarray(loads) * P_CR
+    F[:, 0] = lat * P_CR
+    return tw.Robot(length=L, youngs_modulus=E, poisson_ratio=NU, radius=RB, density=0.0, tip_force=F,
+                    tendons=tuple(tendons), **kw)
+
+
+def elastica_tip(load: float) -> tuple[float, float]:
+    """The post-buckled cantilever under a dead axial load P (inextensible): with theta the
+    tangent angle, EI theta'' + P sin theta = 0, theta(0) = 0, theta'(L) = 0, so
+    EI theta'^2 / 2 = P (cos theta - cos alpha) and, substituting sin(theta / 2) = k sin phi
+    (k = sin(alpha / 2)), lambda L = K(k) with lambda^2 = P / EI; the tip lies at
+    x = 2 k / lambda to the side and z = (2 E(k) - K(k)) / lambda above the base."""
+    lam = np.sqrt(load * P_CR / EI)
+    m = brentq(lambda m: ellipk(m) - lam * L, 0.0, 1.0 - 1e-15)
+    return 2 * np.sqrt(m) / lam, (2 * ellipe(m) - ellipk(m)) / lam
+
+
+def test_euler_buckling_loads_of_the_cantilever_within_a_tenth_of_a_percent():
+    """The straight rod has a double (round section) conjugate point crossing the clamp at
+    each Euler load (2n - 1)^2 P_CR: the index counts both planes."""
+    loads = [0.5, 0.999, 1.001, 5.0, 8.99, 9.01]
+    sol = tw.solve_static(robot(loads), nodes=40, rod="kirchhoff", stability="check", tol=1e-12)
+    assert sol.converged.all()
+    assert np.abs(sol.tip_position[:, :2]).max() < 1e-12  # the straight branch
+    assert sol.stability_index.tolist() == [0, 0, 2, 2, 2, 4]
+    assert sol.lagrangian_error.max() < 1e-8
+    assert sol.stable.tolist() == [True, True, False, False, False, False]
+    assert all(((st & layout.UNSTABLE) != 0) == (i > 0) for st, i in zip(sol.status, sol.stability_index))
+    assert "unstable equilibrium" in sol.failure_reasons()[2]
+
+
+def test_the_stable_branch_past_buckling_is_the_elastica():
+    """Found from the straight, unstable solve by restarts; RK4's fourth order as N doubles."""
+    loads = [1.1, 2.0, 3.0, 10.0]
+    exact = np.array([elastica_tip(f) for f in loads])
+    errors = []
+    for nodes in (30, 60):
+        sol = tw.solve_static(robot(loads), nodes=nodes, rod="kirchhoff", stability="stable", tol=1e-13)
+        assert sol.converged.all() and (sol.stability_index == 0).all() and (sol.branch == 1).all()
+        assert sol.multiple_stable.all()  # a round rod buckles into any plane
+        tip = sol.tip_position
+        errors.append(np.abs(np.c_[np.hypot(tip[:, 0], tip[:, 1]), tip[:, 2]] - exact).max(axis=1))
+    assert (errors[1] < 1e-6).all()  # m, at N = 60 (5.7e-7 m at 10 P_CR, 1.4e-8 m at 1.1 P_CR)
+    assert (errors[0] / errors[1] > 12).all(), errors
+
+
+def test_a_lateral_load_does_not_save_the_straight_solve_but_the_search_does():
+    """With a lateral load of 10% of P_CR the continuation still ends on the nearly straight
+    branch above 2 P_CR; the check flags it, the search returns the bent, stable one."""
+    rb = robot([2.0, 3.0], lateral=0.1)
+    chk = tw.solve_static(rb, nodes=40, rod="kirchhoff", stability="check", tol=1e-12)
+    assert chk.converged.all() and (chk.stability_index > 0).all()
+    assert (chk.tip_position[:, 0] < 0).all() and (chk.tip_position[:, 0] > -0.1 * L).all()  # leaning against it
+    st = tw.solve_static(rb, nodes=40, rod="kirchhoff", stability="stable", tol=1e-12)
+    assert st.converged.all() and st.stable.all() and (st.branch == 1).all()
+    assert (st.tip_position[:, 0] > 0.6 * L).all()  # bent the way the lateral load pushes
+    assert not (st.status & layout.UNSTABLE).any()
+    assert (st.iterations > chk.iterations).all()  # the restarts are counted
+
+
+def test_tendons_under_tension_control_leave_the_euler_load_unchanged():
+    """Straight parallel tendons at fixed tension: their potential sum tau ell has no
+    second-order bending term on a straight rod (ell = integral of 1 + (u x r)_z, linear in u;
+    the total internal force n + sum tau t is the dead load alone), so even tensions of 10 P_CR
+    each leave the rod stable, and with a dead load the rod buckles at P_CR as without them."""
+    tend = [tw.Tendon(offset=o) for o in THREE]
+    sol = tw.solve_static(robot([0.0, 0.0, 0.999, 1.001], tend), [[10 * P_CR] * 3, [1.0] * 3, [5.0] * 3, [5.0] * 3],
+                          nodes=40, stability="check", tol=1e-12)
+    assert sol.converged.all()
+    assert sol.stability_index.tolist() == [0, 0, 0, 2]
+    assert sol.lagrangian_error.max() < 1e-8
+
+
+def test_displacement_controlled_wires_raise_the_buckling_load_fourfold():
+    """Three inextensible wires at 120 degrees under displacement control hold each tendon's
+    length: to first order d ell_k = -(r_k x theta(L))_z (bending) and compression, so the
+    tip cannot rotate. The cantilever becomes a column clamped at the base and guided at the
+    tip (free to sway, not to turn), which buckles at pi^2 EI / L^2 = 4 P_CR. Under tension
+    control at the same tensions the same rods buckle at P_CR."""
+    loads = [3.996, 4.004]  # 4 P_CR within a tenth of a percent
+    disp = [tw.Tendon(offset=o, control="displacement", pretension=1.0) for o in THREE]
+    sol = tw.solve_static(robot(loads, disp), nodes=40, stability="check", tol=1e-12)
+    assert sol.converged.all() and not sol.slack.any()
+    assert sol.stability_index.tolist() == [0, 2]
+    tens = tw.solve_static(robot(loads, [tw.Tendon(offset=o) for o in THREE]), sol.tendon_tension_base, nodes=40,
+                           stability="check", tol=1e-12)
+    assert tens.stability_index.tolist() == [2, 2]
+
+
+def test_what_the_test_does_not_assess_is_said():
+    fr = [tw.Tendon(offset=o, friction=0.2) for o in THREE]
+    sol = tw.solve_static(robot([0.5], fr), [[1.0, 0.0, 0.0]], nodes=20, stability="check")
+    assert sol.converged.all() and sol.stability_index.tolist() == [-1] and not sol.stable.any()
+    pt = tw.solve_static(robot([0.5], [tw.Tendon(offset=o) for o in THREE]), [[1.0, 0.0, 0.0]], nodes=20,
+                         model="point", stability="check")
+    assert pt.stability_index.tolist() == [-1]
+    bad = tw.solve_static(robot([0.5], lateral=2.0), nodes=20, stability="check", max_iter=1, continuation=0)
+    assert not bad.converged.any() and bad.stability_index.tolist() == [-1]
+    with pytest.raises(tw.InputError, match="stability must be one of"):
+        tw.solve_static(robot([0.5]), stability="yes")
