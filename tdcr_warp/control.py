@@ -9,7 +9,7 @@ a bounded least-squares problem per rod (so K tendons reach targets off the tend
 Input models (a_c, b_c):
 - "jacobian" (default): a quasi-static first-mode model of the tip,
   X2_t = w^2 (p_s(tau) - X1) - 2 zeta w X2 with p_s(tau) ~ p_s(tau0) + J (tau - tau0), where
-  J = d p_tip / d tau comes from the batched statics (forward differences, refreshed every
+  J = d p_tip / d tau comes from the batched statics (its tip Jacobian, refreshed every
   ``model_every`` steps), w is the Euler-Bernoulli first bending frequency and zeta the modal
   damping of the strain damping Bbt.
 - "alpha": the report's model, a_c = (n'(L) + rho A g - R C q|q|) / (rho A) and
@@ -133,19 +133,15 @@ class TipController:
         self.zeta = self.omega * np.broadcast_to(robot.damping_bending[:, 0], (B,)) / (2 * EI)
         self.rho_a = rho_a
         self.static_opts = StaticOptions(nodes=sim.opts.nodes, integrator=sim.opts.integrator,
-                                         model=sim.opts.model, precision=sim.opts.precision, threads=sim.opts.threads)
+                                         model=sim.opts.model, precision=sim.opts.precision, threads=sim.opts.threads,
+                                         sensitivities=True)
 
     def _linearise(self, tau: np.ndarray) -> None:
-        """p_s(tau) and J = d p_s / d tau by forward differences of the batched statics."""
-        robot, h = self.model_robot, 1e-2
-        base = solve_static(robot, tau, options=self.static_opts, device=self.sim.dev, initial=self._static)
-        J = np.zeros((len(tau), 3, tau.shape[1]))
-        for k in range(tau.shape[1]):
-            dt = tau.copy()
-            dt[:, k] += h
-            J[:, :, k] = (solve_static(robot, dt, options=self.static_opts, device=self.sim.dev,
-                                       initial=base).tip_position - base.tip_position) / h
-        self._static, self._J, self._p0, self._tau_lin = base, J, base.tip_position, tau.copy()
+        """p_s(tau) and J = d p_s / d tau: one batched static solve with its tip Jacobian
+        (tdcr_warp/sensitivity.py: probes of the converged shooting problem, no extra solves)."""
+        base = solve_static(self.model_robot, tau, options=self.static_opts, device=self.sim.dev,
+                            initial=self._static)
+        self._static, self._J, self._p0, self._tau_lin = base, base.tip_jacobian[:, :3], base.tip_position, tau.copy()
 
     def plant(self) -> tuple[np.ndarray, np.ndarray]:
         """a_c (B, 3) and b_c (B, 3, K) of X2_t = a_c + b_c tau at the current state."""
