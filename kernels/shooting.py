@@ -130,7 +130,8 @@ def make_shooting_kernels(dtype, integrator: str, model: str, dynamic: bool = Fa
 
     @wp.func
     def shoot(x: vecu, md: Model, ct: Control, sp: Step, b: int, store: int, coarse: int, out: Nodes):
-        """Integrate base to tip from the scaled unknowns x; return the scaled residual.
+        """Integrate base to tip from the scaled unknowns x; return the scaled residual and the
+        tip's position and orientation.
         coarse = 1 (statics, never with store): steps over two intervals wherever no load sits
         on the node between them, about half the work (the probes of a first Jacobian)."""
         fs = md.rod[rf.row(b, md.rod), FORCE_SCALE]
@@ -229,7 +230,7 @@ def make_shooting_kernels(dtype, integrator: str, model: str, dynamic: bool = Fa
         for i in range(3):
             res[i] = rn[i]
             res[3 + i] = rm[i]
-        return rf.length_residuals(md, ct, b, x, E, res)
+        return rf.length_residuals(md, ct, b, x, E, res), p, R
 
     @wp.func
     def residual_scale(md: Model, b: int):
@@ -284,7 +285,8 @@ def make_shooting_kernels(dtype, integrator: str, model: str, dynamic: bool = Fa
             for j in range(n_eval):  # a runtime bound: one copy of the integrator, not n_probes
                 e = evaluation(nw, b, j, coarse)
                 if e >= 0:
-                    nw.res[b, j] = shoot(nt.probe_point(x, j), md, ct, sp, b, e, coarse * (1 - e), out)
+                    r, p_tip, R_tip = shoot(nt.probe_point(x, j), md, ct, sp, b, e, coarse * (1 - e), out)
+                    nw.res[b, j] = r
             if solving == 0:
                 break
             nt.update(nw, b, residual_scale(md, b), tol, max_iter, max_step, broyden, coarse)
@@ -301,7 +303,8 @@ def make_shooting_kernels(dtype, integrator: str, model: str, dynamic: bool = Fa
         coarse = coarse_now(nw, b, coarse_jacobian, broyden)
         e = evaluation(nw, b, j, coarse)
         if e >= 0:
-            nw.res[b, j] = shoot(nt.probe_point(nw.xt[b], j), md, ct, sp, b, e, coarse * (1 - e), out)
+            r, p_tip, R_tip = shoot(nt.probe_point(nw.xt[b], j), md, ct, sp, b, e, coarse * (1 - e), out)
+            nw.res[b, j] = r
 
     @wp.kernel(module=modules["probes"], enable_backward=False)
     def update_kernel(md: Model, nw: Newton, tol: dtype, max_iter: int, max_step: dtype, broyden: int,
@@ -320,7 +323,7 @@ def make_shooting_kernels(dtype, integrator: str, model: str, dynamic: bool = Fa
             nw.status[b] = MAX_ITER
             nw.active[b] = 0
         if needs_final_shape(nw, b):
-            shoot(nw.x[b], md, ct, sp, b, 1, 0, out)
+            r, p_tip, R_tip = shoot(nw.x[b], md, ct, sp, b, 1, 0, out)
 
     @wp.kernel(module=modules["probes"], enable_backward=False)
     def begin_kernel(nw: Newton, x_from: wp.array(dtype=vecu), fresh_jacobian: int, mask: wp.array(dtype=int)):
@@ -330,11 +333,16 @@ def make_shooting_kernels(dtype, integrator: str, model: str, dynamic: bool = Fa
 
     @wp.kernel(module=modules["evaluate"], enable_backward=False)
     def evaluate_kernel(md: Model, ct: Control, sp: Step, x: wp.array(dtype=vecu), out: Nodes,
-                        res: wp.array(dtype=vecu)):
-        """One integration per rod from x, storing the shape (and the dynamics slots) and the
-        residual (the probes of a sensitivity, tdcr_warp/sensitivity.py)."""
+                        res: wp.array(dtype=vecu), tip_p: wp.array(dtype=vec3), tip_R: wp.array(dtype=mat33),
+                        store: int):
+        """One integration per rod from x: its residual and tip pose, and with ``store`` its shape
+        (and the dynamics slots) in ``out`` (without, a probe of a sensitivity,
+        tdcr_warp/sensitivity.py, at the cost of the integration alone)."""
         b = wp.tid()
-        res[b] = shoot(x[b], md, ct, sp, b, 1, 0, out)
+        r, p_tip, R_tip = shoot(x[b], md, ct, sp, b, store, 0, out)
+        res[b] = r
+        tip_p[b] = p_tip
+        tip_R[b] = R_tip
 
     return SimpleNamespace(solve=solve_kernel, probe=probe_kernel, update=update_kernel, finish=finish_kernel,
                            begin=begin_kernel, evaluate=evaluate_kernel, Model=Model, Control=Control, Step=Step,

@@ -76,9 +76,9 @@ def _modules(v: Variant):
 
     dtype = wp.float64 if v.precision == "float64" else wp.float32
     k = make_shooting_kernels(dtype, v.integrator, v.model, v.dynamic, v.rod, v.features)
-    mods = [k.solve.module, k.probe.module]
+    mods = [k.solve.module, k.probe.module, k.evaluate.module]  # evaluate: dynamics, and the probes of sensitivities
     if v.dynamic:
-        mods += [k.evaluate.module, make_history_kernels(dtype).end_step.module]
+        mods.append(make_history_kernels(dtype).end_step.module)
     return mods
 
 

@@ -1,4 +1,5 @@
-"""Command line: ``tdcr-warp static SCENE.toml`` and ``tdcr-warp simulate SCENE.toml``.
+"""Command line: ``tdcr-warp static|simulate|control|ik SCENE.toml`` and the sweeps
+``tdcr-warp montecarlo|workspace|gain-grid SCENE.toml``.
 
 Exit status: 0 every rod converged; 1 some rods failed (outputs written, reasons recorded);
 2 bad input (the message names the field and the value, no traceback).
@@ -129,7 +130,7 @@ def cmd_static(args) -> int:
                   "converged": bool(sol.converged[b]), "status": reasons[b],
                   "iterations": int(sol.iterations[b]), "residual": float(sol.residual[b]),
                   "orthogonality_error": float(sol.orthogonality_error[b]), "tendons": _tendon_rows(sol, b)}
-                 for b in range(B)],
+                 | _sensitivity_row(sol, b) for b in range(B)],
     }
     _write_json(out / "results.json", results)  # last: its presence means the run is complete
     print(f"wrote {out}/results.json, shapes.npz{'' if args.no_figures else ', shapes.png'}")
@@ -140,6 +141,19 @@ def cmd_static(args) -> int:
               file=sys.stderr)
         return 1
     return 0
+
+
+def _sensitivity_row(sol, b: int) -> dict:
+    """Rod b's stability verdict and (with sensitivities) its tip Jacobian and compliance."""
+    row = {}
+    if sol.stability_index is not None:
+        row |= {"stability_index": int(sol.stability_index[b]), "stable": bool(sol.stable[b])}
+        if sol.branch is not None:
+            row |= {"branch": int(sol.branch[b]), "multiple_stable": bool(sol.multiple_stable[b])}
+    if sol.tip_jacobian is not None:
+        clean = lambda a: np.where(np.isfinite(a), a, None).tolist()  # noqa: E731 (JSON has no NaN)
+        row |= {"tip_jacobian": clean(sol.tip_jacobian[b]), "tip_compliance": clean(sol.tip_compliance[b])}
+    return row
 
 
 def _tendon_rows(sol, b: int) -> list[dict]:
@@ -255,6 +269,49 @@ def cmd_control(args) -> int:
     return 0
 
 
+def cmd_ik(args) -> int:
+    """Inverse kinematics of the scene's [ik] targets (tdcr_warp.ik)."""
+    from .ik import solve_ik
+    from .scene import load_scene
+
+    scene = _apply_overrides(load_scene(args.scene), args)
+    ik = scene.ik
+    if ik is None:
+        raise InputError(f"{args.scene}: ik needs an [ik] table (targets = [[x, y, z], ...] in m)")
+    out = _out_dir(args, Path("out") / Path(args.scene).stem)
+    load_s = _load_kernels(replace(scene, options=replace(scene.options, sensitivities=True)), args)
+    t0 = time.perf_counter()
+    kw = {k: ik[k] for k in ("tension_max", "displacement_range", "tol", "max_iter") if k in ik}
+    res = solve_ik(scene.robot, ik["targets"], target_rotation=ik.get("target_rotations"), options=scene.options,
+                   device=args.device, **kw)
+    wall = time.perf_counter() - t0
+    B = len(res.success)
+    print(f"inverse kinematics of {B} target(s) in {wall:.3f} s ({B / wall:,.0f} targets/s, kernel loading excluded)")
+    for b in range(min(B, 10)):
+        print(f"  rod {b}: command {np.round(res.command[b], 6).tolist()}  error {res.position_error[b]:.2e} m  "
+              f"{res.reason[b]} ({res.iterations[b]} iterations)")
+    if B > 10:
+        print(f"  ... {B - 10} more rods")
+    _write_npz(out / "ik.npz", res.to_npz)
+    targets = np.broadcast_to(np.array(ik["targets"], dtype=np.float64), (B, 3))
+    results = {"scene": str(args.scene), "settings": _settings(scene, args, args.device or "default"),
+               "batch_size": B, "wall_time_s": wall, "kernel_load_s": load_s,
+               "command_units": ["N" if t.control == "tension" else "m" for t in scene.robot.tendons],
+               "rods": [{"target": targets[b].tolist(), "command": res.command[b].tolist(),
+                         "tip_position": res.tip_position[b].tolist(),
+                         "position_error_m": float(res.position_error[b]),
+                         "orientation_error_rad": float(res.orientation_error[b]), "success": bool(res.success[b]),
+                         "reason": res.reason[b], "iterations": int(res.iterations[b])} for b in range(B)]}
+    _write_json(out / "ik.json", results)  # last: its presence means the run is complete
+    print(f"wrote {out}/ik.json, ik.npz")
+    missed = int((~res.success).sum())
+    if missed:
+        print(f"tdcr-warp: {missed} of {B} targets not reached (for an unreachable one, the closest point found: "
+              "ik.json)", file=sys.stderr)
+        return 1
+    return 0
+
+
 def _failure_counts(status: np.ndarray, ok: np.ndarray) -> dict[str, int]:
     from .types import describe_status
     counts: dict[str, int] = {}
@@ -305,6 +362,7 @@ def cmd_sweep(args) -> int:
     if job_name == "montecarlo":
         nominal = solve_static(base.robot, base.tensions, options=base.options, device=dev).tip_position[0]
         summary = summarize_montecarlo(res, nominal, out)
+        summary["linearised"] = _linearised(data, dev, summary)
     elif job_name == "workspace":
         summary = summarize_workspace(res, base.robot, out)
     else:
@@ -326,6 +384,27 @@ def cmd_sweep(args) -> int:
     return 0
 
 
+def _linearised(data: dict, device, summary: dict) -> dict:
+    """The first-order tip spread of the Monte-Carlo scene (tdcr_warp.uncertainty) beside the
+    sampled one: per axis the standard deviations [m] and their ratio, or why it is not there."""
+    from .uncertainty import linearised_spread
+
+    try:
+        lin = linearised_spread(data, device)
+    except InputError as e:
+        return {"available": False, "reason": str(e)}
+    mc = np.sqrt(np.diag(summary["tip_covariance"])) if summary.get("tip_covariance") else None
+    with np.errstate(invalid="ignore", divide="ignore"):
+        ratio = None if mc is None else np.where(lin["tip_std"] > 0, mc / lin["tip_std"], np.nan)
+    return {"available": True, "tip_std_m": lin["tip_std"].tolist(),
+            "montecarlo_tip_std_m": None if mc is None else mc.tolist(),
+            "montecarlo_over_linearised": None if ratio is None else [None if not np.isfinite(r) else float(r)
+                                                                      for r in ratio],
+            "contributions_m2": dict(zip(lin["parameters"], lin["contributions"].tolist())),
+            "note": "first order: J Sigma J^T from one solve; the Monte-Carlo spread departs from it as the "
+                    "scatter grows (README, Sensitivities)"}
+
+
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="tdcr-warp", description="Batched tendon-driven continuum robots on Warp.")
     sub = ap.add_subparsers(dest="command", required=True)
@@ -334,7 +413,8 @@ def build_parser() -> argparse.ArgumentParser:
                            ("control", "sliding-mode tip control ([dynamics] and [control] tables)"),
                            ("montecarlo", "tip distribution (and control success) under [[uncertainty]]"),
                            ("workspace", "tip cloud over a [sweep] of tensions"),
-                           ("gain-grid", "controller metrics over a [sweep.grid] of control gains")):
+                           ("gain-grid", "controller metrics over a [sweep.grid] of control gains"),
+                           ("ik", "inverse kinematics: tendon commands for the [ik] targets")):
         p = sub.add_parser(name, help=helptext)
         p.add_argument("scene", help="scene file (TOML)")
         p.add_argument("--out", help="output directory (default: out/<scene name>)")
@@ -348,7 +428,7 @@ def build_parser() -> argparse.ArgumentParser:
         if name in ("static", "simulate"):
             p.add_argument("--no-figures", action="store_true", help="skip the PNG figures (matplotlib costs ~0.7 s)")
         if name not in ("static",):
-            p.add_argument("--quiet", action="store_true", help="no progress bar")
+            p.add_argument("--quiet", action="store_true", help="no progress bar" if name != "ik" else "no messages")
         if name in ("montecarlo", "workspace", "gain-grid"):
             p.add_argument("--chunk", type=int, help="rods per chunk (default [sweep].chunk)")
             p.add_argument("--resume", action="store_true", help="continue an interrupted sweep in --out")
@@ -377,7 +457,7 @@ def main(argv=None) -> int:
             except (RuntimeError, ValueError) as e:
                 raise InputError(f"--device {args.device!r}: {e}") from None
         cmds = {"static": cmd_static, "simulate": cmd_simulate, "control": cmd_control, "montecarlo": cmd_sweep,
-                "workspace": cmd_sweep, "gain-grid": cmd_sweep}
+                "workspace": cmd_sweep, "gain-grid": cmd_sweep, "ik": cmd_ik}
         return cmds[args.command](args)
     except InputError as e:
         print(f"tdcr-warp: error: {e}", file=sys.stderr)

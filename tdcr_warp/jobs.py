@@ -22,13 +22,21 @@ __all__ = ["SweepJob", "constant_curvature_tip", "control_job", "convex_hull_2d"
 
 def static_job(scene: Scene, device=None, shapes: bool = False) -> dict[str, np.ndarray]:
     """Compact per-rod statics: tip pose, convergence, status bits, iterations, residual,
-    tensions; with ``shapes`` also the backbone positions (B, N+1, 3)."""
+    tensions; with ``shapes`` also the backbone positions (B, N+1, 3); with the solver's
+    ``stability`` the stability index (and branch), with ``sensitivities`` the tip Jacobian and
+    compliance."""
     sol = solve_static(scene.robot, scene.tensions, options=scene.options, device=device, **scene.static_command())
     out = {"tip_position": sol.tip_position, "tip_rotation": sol.tip_rotation, "ok": sol.converged,
            "status": sol.status, "iterations": sol.iterations, "residual": sol.residual, "tensions": scene.tensions,
            "tension_base": sol.tendon_tension_base, "tension_end": sol.tendon_tension_end}
     if sol.slack is not None:
         out["slack"] = sol.slack
+    if sol.stability_index is not None:
+        out["stability_index"] = sol.stability_index
+        if sol.branch is not None:
+            out["branch"] = sol.branch
+    if sol.tip_jacobian is not None:
+        out["tip_jacobian"], out["tip_compliance"] = sol.tip_jacobian, sol.tip_compliance
     if shapes:
         out["positions"] = sol.positions
     return out

@@ -13,6 +13,8 @@ Tables and keys (SI units; see README "Scene format"):
   [dynamics]   dt, alpha, steps, damping_shear, damping_bending, drag, shapes_every
   [control]    target (or target_tensions: the static tip there), method, input_model, gain_c,
                gain_k, epsilon, phi, tension_max, model_every (see tdcr_warp.control)
+  [ik]         targets (B rows of 3, m), target_rotations (B 3x3 matrices), tension_max (N),
+               displacement_range ([lo, hi], m), tol (m), max_iter (see tdcr_warp.ik)
 A robot scalar may be a list of B numbers and a vector a list of B vectors (per-rod values).
 Every error is an :class:`InputError` naming the table, the key and the value.
 """
@@ -42,7 +44,8 @@ DYNAMICS_KEYS = {"dt", "alpha", "steps", "damping_shear", "damping_bending", "dr
 CONTROL_KEYS = {"target", "target_tensions", "method", "input_model", "gain_c", "gain_k", "epsilon", "phi",
                 "tension_max", "model_every"}
 SOLVER_KEYS = {f.name for f in fields(StaticOptions)} | {"preset"}
-TABLES = {"robot", "tendons", "loads", "actuation", "solver", "dynamics", "control", "sweep", "uncertainty"}
+IK_KEYS = {"targets", "target_rotations", "tension_max", "displacement_range", "tol", "max_iter"}
+TABLES = {"robot", "tendons", "loads", "actuation", "solver", "dynamics", "control", "sweep", "uncertainty", "ik"}
 
 
 @dataclass(frozen=True)
@@ -61,7 +64,8 @@ class DynamicsSpec:
 class Scene:
     """A loaded scene. robot: the batch of B rods; tensions: (B, K) [N]; options: the
     [solver] table; dynamics: the [dynamics] table (None without one); source: the parsed
-    TOML as a dict; control: the [control] table (None without one); displacements (B, K)
+    TOML as a dict; control: the [control] table (None without one); ik: the [ik] table (None
+    without one, its numbers checked); displacements (B, K)
     [m] and slip (B, K): the statics commands of tendons under displacement control and the
     slip directions of friction (None: not given)."""
 
@@ -73,6 +77,7 @@ class Scene:
     control: dict | None = None
     displacements: np.ndarray | None = None
     slip: np.ndarray | None = None
+    ik: dict | None = None
 
     def static_command(self) -> dict:
         """The keyword arguments of solve_static for this scene's actuation."""
@@ -288,5 +293,14 @@ def scene_from_dict(data: dict) -> Scene:
                                             "[actuation].displacements")
     if "slip" in act:
         slip = check_slip(robot, _numbers(act["slip"], "[actuation].slip"), B, "[actuation].slip")
+    ik = _table(data, "ik", IK_KEYS) or None
+    if ik is not None:
+        ik = dict(ik)
+        _required(ik, "targets", "[ik]")
+        for key in ("targets", "target_rotations", "tension_max", "displacement_range", "tol"):
+            if key in ik:
+                ik[key] = _numbers(ik[key], f"[ik].{key}")
+        if "max_iter" in ik:
+            _integer(ik["max_iter"], "[ik].max_iter")
     return Scene(robot=robot, tensions=tensions, options=options, dynamics=dynamics, source=data, control=control,
-                 displacements=displacements, slip=slip)
+                 displacements=displacements, slip=slip, ik=ik)

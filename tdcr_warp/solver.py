@@ -32,10 +32,10 @@ def _fused(driver: str | None, device) -> bool:
     return (driver or ("probes" if device.is_cuda else "fused")) == "fused"
 
 
-def _load_solver_kernels(k, fused: bool, dynamic: bool, device) -> None:
-    """Compile (or load) the kernels a Shooting of variant k runs: its Newton driver, and the
-    evaluation of a known state in dynamics."""
-    for kernel in (k.solve if fused else k.probe,) + ((k.evaluate,) if dynamic else ()):
+def _load_solver_kernels(k, fused: bool, evaluate: bool, device) -> None:
+    """Compile (or load) the kernels a Shooting of variant k runs: its Newton driver, and with
+    ``evaluate`` the evaluation of a known state (dynamics; the probes of sensitivities)."""
+    for kernel in (k.solve if fused else k.probe,) + ((k.evaluate,) if evaluate else ()):
         kernel.module.load(device, 1 if device.is_cpu else 256)
 
 
@@ -55,9 +55,10 @@ def load_kernels(robot: Robot, options, device=None, *, dynamic: bool = False) -
         variants.append((False, scene_features(robot, tendon, options.specialize, options.kink_loads, "reference")))
     if dynamic:
         variants.append((True, scene_features(robot, tendon, options.specialize, options.kink_loads)))
+    probes = options.sensitivities or options.stability != "off"  # statics evaluates probes one by one
     for dyn, features in variants:
         k = make_shooting_kernels(wdtype, options.integrator, options.model, dyn, options.rod, features)
-        _load_solver_kernels(k, _fused(options.driver, dev), dyn, dev)
+        _load_solver_kernels(k, _fused(options.driver, dev), dyn or probes, dev)
     if dynamic:
         make_history_kernels(wdtype).end_step.module.load(dev, 1 if dev.is_cpu else 256)
     return time.perf_counter() - t0
@@ -131,12 +132,14 @@ class Shooting:
         """One integration per rod from scaled unknowns x (b, nu), storing shapes and slots."""
         self.dev.put(self.x_in, x)
         wp.launch(self.kern.evaluate, dim=self.b, device=self.device,
-                  inputs=[self.model, self.control, self.step, self.x_in, self.nodes, self.probe_res])
+                  inputs=[self.model, self.control, self.step, self.x_in, self.nodes, *self.probe_out, 1])
 
     @functools.cached_property
-    def probe_res(self) -> wp.array:
-        """(b,) residuals of the last ``evaluate`` or ``probe``."""
-        return wp.zeros(self.b, dtype=self.kern.vecu, device=self.device)
+    def probe_out(self) -> tuple[wp.array, wp.array, wp.array]:
+        """(b,) residuals, tip positions and tip orientations of the last ``evaluate`` or ``probe``."""
+        k, d = self.kern, self.device
+        return (wp.zeros(self.b, dtype=k.vecu, device=d), wp.zeros(self.b, dtype=k.vec3, device=d),
+                wp.zeros(self.b, dtype=k.mat33, device=d))
 
     @functools.cached_property
     def probe_nodes(self):
@@ -146,8 +149,8 @@ class Shooting:
     def probe(self, x: np.ndarray, model=None, *, shapes: bool = False) -> dict[str, np.ndarray]:
         """One integration per rod from scaled unknowns x (b, nu) under ``model`` (default this
         problem's; a perturbed Model of the same shape) and the current Control, leaving the
-        solution untouched (statics: with friction the trial point's tension profile is
-        overwritten, so read ``results`` first). Returns float64 host copies of the residual
+        solution untouched (statics: with ``shapes`` and friction the trial point's tension
+        profile is overwritten, so read ``results`` first). Returns float64 host copies of the residual
         ``res`` (b, nu), the tip ``p`` (b, 3) and ``R`` (b, 3, 3) and with ``shapes`` the node
         arrays ``P``, ``Rn``, ``n``, ``m`` (b, N+1, ...)."""
         kernel = self.kern.evaluate
@@ -155,12 +158,13 @@ class Shooting:
         self.dev.put(self.x_in, x)
         out = self.probe_nodes
         wp.launch(kernel, dim=self.b, device=self.device,
-                  inputs=[model or self.model, self.control, self.step, self.x_in, out, self.probe_res])
+                  inputs=[model or self.model, self.control, self.step, self.x_in, out, *self.probe_out, int(shapes)])
         f64 = np.float64
-        P, Rn = out.p.numpy().astype(f64), out.R.numpy().astype(f64)
-        got = {"res": self.probe_res.numpy().astype(f64), "p": P[:, -1], "R": Rn[:, -1]}
+        res, p, R = (a.numpy().astype(f64) for a in self.probe_out)
+        got = {"res": res, "p": p, "R": R}
         if shapes:
-            got |= {"P": P, "Rn": Rn, "n": out.n.numpy().astype(f64), "m": out.m.numpy().astype(f64)}
+            got |= {"P": out.p.numpy().astype(f64), "Rn": out.R.numpy().astype(f64), "n": out.n.numpy().astype(f64),
+                    "m": out.m.numpy().astype(f64)}
         return got
 
     def solve(self, start=None, *, tol: float, max_iter: int, max_step: float, broyden: bool,

@@ -42,7 +42,7 @@ class StaticSolution:
     tip_position (B, 3), tip_rotation (B, 3, 3); base_wrench (B, 6) = [n(0), m(0)].
     converged (B,) bool; status (B,) bit flags (kernels/layout.py); iterations (B,);
     integrations (B,): base-to-tip integrations spent (the 7 of a first Jacobian in a Broyden RK4 solve with
-    N >= 16 run over double steps, at about half the cost); residual (B,): L |r| [m];
+    N >= 16 run over double steps, at about half the cost; the probes of sensitivities included); residual (B,): L |r| [m];
     orthogonality_error (B,): max |R^T R - I| over the nodes; jacobian (B, nu, nu): the last
     scaled shooting Jacobian (reused by a warm start); unknowns (B, nu): the scaled shooting
     unknowns (nu = 6 + one per displacement-controlled tendon). tip_error_estimate (B,) [m]:
@@ -401,6 +401,7 @@ class StaticProblem:
                                              taut if t.features.displaced else None)
                 index = np.where(res["converged"], index, -1)
             out |= {"stability_index": index, "lagrangian_error": lag}
+        out["integrations"] = res["integrations"] + lin["integrations"]
         return out
 
     def _stable_branch(self, sh: Shooting, lo: int, hi: int, tau: np.ndarray, taut: np.ndarray, res: dict,

@@ -204,3 +204,38 @@ def test_control_table_errors(tmp_path, capsys):
     text = (EXAMPLES / "our_control.toml").read_text().replace("target_tensions", "target_tension")
     assert main(["control", str(write(tmp_path, text)), "--out", str(tmp_path / "o")]) == 2
     assert "unknown key 'target_tension' in [control]" in capsys.readouterr().err
+
+
+def test_ik_example_reaches_three_targets_and_reports_the_unreachable_one(tmp_path):
+    """examples/ik_targets.toml: three static tips of known tensions and one out of reach."""
+    out = tmp_path / "ik"
+    assert main(["ik", str(EXAMPLES / "ik_targets.toml"), "--out", str(out)]) == 1
+    rods = json.loads((out / "ik.json").read_text())["rods"]
+    assert [r["reason"] for r in rods] == ["reached"] * 3 + ["unreachable"]
+    assert max(r["position_error_m"] for r in rods[:3]) < 1e-9 and rods[3]["position_error_m"] > 0.3
+    assert all(0.0 <= c <= 8.0 for r in rods for c in r["command"])
+    sc = load_scene(EXAMPLES / "ik_targets.toml")  # the commands put the tips there, by an independent solve
+    tips = tw.solve_static(sc.robot, [r["command"] for r in rods[:3]], nodes=20, tol=1e-13).tip_position
+    assert np.abs(tips - [r["target"] for r in rods[:3]]).max() < 1e-9
+
+
+def test_static_reports_stability_and_sensitivities(tmp_path):
+    scene = write(tmp_path, BASE.replace("[solver]", '[solver]\nstability = "check"\nsensitivities = true'))
+    out = tmp_path / "o"
+    assert main(["static", str(scene), "--out", str(out), "--no-figures"]) == 0
+    rod = json.loads((out / "results.json").read_text())["rods"][0]
+    assert rod["stability_index"] == 0 and rod["stable"]
+    assert np.array(rod["tip_jacobian"]).shape == (6, 2) and np.array(rod["tip_compliance"]).shape == (6, 6)
+    assert np.load(out / "shapes.npz")["tip_compliance"].shape == (1, 6, 6)
+
+
+@pytest.mark.parametrize("edit, message", [
+    ("[ik]\ntension_max = 8.0", "missing key 'targets' in [ik]"),
+    ("[ik]\ntargets = [[0.0, 0.1]]", "target: expected shape"),
+    ("[ik]\ntargets = 'far'", "[ik].targets"),
+    ("[ik]\ntargets = [[0.0, 0.0, 0.5]]\nspeed = 1", "speed"),
+])
+def test_ik_table_errors(tmp_path, capsys, edit, message):
+    scene = write(tmp_path, BASE + "\n" + edit + "\n")
+    assert main(["ik", str(scene), "--out", str(tmp_path / "o")]) == 2
+    assert message in capsys.readouterr().err
