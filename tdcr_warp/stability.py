@@ -68,18 +68,20 @@ def totals(st: dict, rod: np.ndarray, tension: np.ndarray, route, present: np.nd
     if route is None:
         return n, m
     r, dr = route
-    rtn = np.einsum("bsji,bsj->bsi", R, n)
-    rtm = np.einsum("bsji,bsj->bsi", R, m)
+    Rt = np.swapaxes(R, -1, -2)
+    rtn = (Rt @ n[..., None])[..., 0]
+    rtm = (Rt @ m[..., None])[..., 0]
     kse, kbt = rod[:, None, layout.KSE:layout.KSE + 3], rod[:, None, layout.KBT:layout.KBT + 3]
     ustar = rod[:, None, layout.USTAR:layout.USTAR + 3]
     e3 = np.array([0.0, 0.0, 1.0])
     v = np.broadcast_to(e3, rtn.shape) if kirchhoff else rtn / kse + e3
     u = rtm / kbt + ustar
     pb = _cross(u[:, :, None], r) + dr + v[:, :, None]
-    t = np.einsum("bsij,bskj->bski", R, pb / np.linalg.norm(pb, axis=-1, keepdims=True))
-    w = (tension[:, None, :] * present)[..., None]
-    arm = np.einsum("bsij,bskj->bski", R, np.broadcast_to(r, pb.shape))
-    return n + (w * t).sum(axis=2), m + (w * _cross(arm, t)).sum(axis=2)
+    w = (tension[:, None, :] * present)[..., None] / np.linalg.norm(pb, axis=-1, keepdims=True)
+    # in the body frame: sum tau pb / |pb| and sum tau r x pb / |pb|, then to the world
+    fb = (w * pb).sum(axis=2)
+    lb = (w * _cross(np.broadcast_to(r, pb.shape), pb)).sum(axis=2)
+    return n + (R @ fb[..., None])[..., 0], m + (R @ lb[..., None])[..., 0]
 
 
 def _field(st0: dict, st1: dict, tot0, tot1, h) -> np.ndarray:
@@ -104,20 +106,19 @@ def _rotated_loads(tables: Tables, axis: int, eps: float) -> Tables:
     return replace(tables, rod=rod, pforce=pf)
 
 
-def jacobi_index(sh, lin: dict, tables: Tables, robot: Robot, lo: int, hi: int, tension: np.ndarray,
+def jacobi_index(sh, lin: dict, tables: Tables, route, lo: int, hi: int, tension: np.ndarray,
                  precision: str, kirchhoff: bool, coupled: bool, taut: np.ndarray | None):
     """Per rod of the chunk: the index of the second variation (0: stable), the Lagrangian
     check max |U^T V - V^T U| / max(|U|, |V|)^2 over the nodes (Frobenius norms of the
     symplectically scaled fields), and the eigenphases' smallest
     distance from a crossing at the clamp (a margin [rad]). ``lin``: linearise(..., shapes=True);
-    tension (b, K) the tendons' tensions [N]; taut (b, K) or None: the taut displaced tendons."""
+    route: ``node_routing`` of the whole batch; tension (b, K) the tendons' tensions [N]; taut
+    (b, K) or None: the taut displaced tendons."""
     base, fields, hx = lin["base"], lin["fields"], lin["field_steps"]
     b, N1 = base["P"].shape[:2]
     rod = np.broadcast_to(tables.rows("rod", lo, hi), (b, layout.ROD_WIDTH))
-    route = None
     K = tension.shape[1]
-    if K and coupled:
-        route = tuple(a[lo:hi] if a.shape[0] > 1 else a for a in node_routing(robot, tables.grid))
+    route = tuple(a[lo:hi] if a.shape[0] > 1 else a for a in route) if K and coupled else None
     term = np.broadcast_to(tables.rows("term_node", lo, hi), (b, K))
     present = (np.arange(N1)[None, :, None] <= term[:, None, :]).astype(np.float64)
 

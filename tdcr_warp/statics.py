@@ -26,7 +26,7 @@ from .parallel import parallel, split
 from .robot import InputError, Robot, check_command, check_slip, require_memory
 from .sensitivity import linearise, parameter_tables
 from .solver import Shooting
-from .stability import jacobi_index
+from .stability import jacobi_index, node_routing
 from .types import StaticOptions, describe_status
 
 __all__ = ["StaticOptions", "StaticProblem", "StaticSolution", "reference_lengths", "solve_static"]
@@ -232,6 +232,11 @@ class StaticProblem:
         return np.concatenate([t.straight.guess(guess) / scales[:, :6], z], axis=1)
 
     @functools.cached_property
+    def node_routes(self) -> tuple[np.ndarray, np.ndarray]:
+        """r and r' of every tendon at the grid's nodes (tdcr_warp.stability.node_routing), once."""
+        return node_routing(self.robot, self.tables.grid)
+
+    @functools.cached_property
     def tendon_compliance(self) -> np.ndarray:
         """(B, K, K) the linear model of a straight rod (``linear_tensions``): tendon k shortens by
         sum_j C_kj tau_j, C_kj = l_kj (r_k . r_j / EI + 1 / EA) + c_k l_k delta_kj (l_kj =
@@ -396,7 +401,7 @@ class StaticProblem:
             index, lag = np.full(b, -1, dtype=np.int64), np.full(b, np.nan)
             if assess:
                 tension = res["tendons"][..., layout.TO_BASE] if "tendons" in res else tau
-                index, lag, _ = jacobi_index(sh, lin, t, self.robot, lo, hi, tension, o.precision,
+                index, lag, _ = jacobi_index(sh, lin, t, self.node_routes, lo, hi, tension, o.precision,
                                              o.rod == "kirchhoff", o.model == "coupled",
                                              taut if t.features.displaced else None)
                 index = np.where(res["converged"], index, -1)
