@@ -1,5 +1,6 @@
-"""Command line: ``tdcr-warp static|simulate|control|ik SCENE.toml`` and the sweeps
-``tdcr-warp montecarlo|workspace|gain-grid SCENE.toml``.
+"""Command line: ``tdcr-warp static|simulate|control|ik SCENE.toml``, the sweeps
+``tdcr-warp montecarlo|workspace|gain-grid SCENE.toml`` and measured robots
+``tdcr-warp fit|predict SCENE.toml DATA.csv``.
 
 Exit status: 0 every rod converged; 1 some rods failed (outputs written, reasons recorded);
 2 bad input (the message names the field and the value, no traceback).
@@ -312,6 +313,90 @@ def cmd_ik(args) -> int:
     return 0
 
 
+def _write_predictions(path: Path, meas, pred: dict) -> None:
+    """predictions.csv: one row per input row, predicted and measured tip [mm], error, flags."""
+    import csv
+
+    K = pred["slack"].shape[1] if pred["slack"] is not None else 0
+    def write(tmp):
+        with open(tmp, "w", newline="") as f:
+            w = csv.writer(f)
+            w.writerow(["row", "source", "pattern_label", "pred_x_mm", "pred_y_mm", "pred_z_mm", "meas_x_mm",
+                        "meas_y_mm", "meas_z_mm", "error_mm", "converged", "retried"] + [f"slack_{k}" for k in range(K)])
+            err = np.linalg.norm(pred["error_mm"], axis=1)
+            for i in range(len(meas)):
+                w.writerow([i, meas.source[i], meas.labels[i], *np.round(pred["point_mm"][i], 6).tolist(),
+                            *meas.tip_mm[i].tolist(), round(float(err[i]), 6), int(pred["converged"][i]),
+                            int(pred["retried"][i])] + [int(x) for x in (pred["slack"][i] if K else [])])
+    _write_atomic(path, write)
+
+
+def cmd_predict(args) -> int:
+    """Predict measured tips of a scene with a [hardware] table (tdcr_warp.hardware)."""
+    from .hardware import metrics, predict, read_measurements
+    from .plotting import plot_prediction
+    from .scene import load_scene
+
+    scene = _apply_overrides(load_scene(args.scene), args)
+    if scene.hardware is None:
+        raise InputError(f"{args.scene}: predict needs a [hardware] table (servo_columns, marker_offset, base_offset)")
+    meas = read_measurements(args.data, scene.hardware["servo_columns"])
+    out = _out_dir(args, Path("out") / Path(args.scene).stem)
+    load_s = _load_kernels(scene, args)
+    pred = predict(scene, meas, device=args.device)
+    m = metrics(pred["error_mm"], pred["converged"], float(np.max(scene.robot.length)))
+    print(f"predicted {len(meas)} rows in {pred['wall_s']:.2f} s ({1e3 * pred['wall_s'] / len(meas):.2f} ms per row, "
+          f"one batched solve; kernel loading excluded): RMSE {m['rmse_mm']:.2f} mm, aligned {m['rmse_aligned_mm']:.2f} mm, "
+          f"median {m['median_mm']:.2f} mm, p95 {m['p95_mm']:.2f} mm, {m['converged']} of {m['rows']} converged")
+    _write_predictions(out / "predictions.csv", meas, pred)
+    plot_prediction(meas.tip_mm, pred["point_mm"], pred["converged"], out / "predict.png")
+    _write_json(out / "metrics.json", m | {"scene": str(args.scene), "data": [str(d) for d in args.data],
+                                           "wall_time_s": pred["wall_s"], "kernel_load_s": load_s,
+                                           "ms_per_row": 1e3 * pred["wall_s"] / len(meas),
+                                           "settings": _settings(scene, args, args.device or "default")})
+    print(f"wrote {out}/metrics.json, predictions.csv, predict.png")
+    return 0 if m["converged"] == m["rows"] else 1
+
+
+def cmd_fit(args) -> int:
+    """Calibrate a [hardware] scene on measured rows (tdcr_warp.hardware.fit); writes fitted.toml."""
+    import tomllib
+
+    import tomli_w
+
+    from .hardware import fit, read_measurements
+    from .scene import scene_from_dict
+
+    try:
+        data = tomllib.loads(Path(args.scene).read_text())
+    except (OSError, tomllib.TOMLDecodeError) as e:
+        raise InputError(f"{args.scene}: {e}") from None
+    scene = scene_from_dict(data)
+    if scene.hardware is None:
+        raise InputError(f"{args.scene}: fit needs a [hardware] table (servo_columns, marker_offset, base_offset)")
+    meas = read_measurements(args.data, scene.hardware["servo_columns"])
+    out = _out_dir(args, Path("out") / (Path(args.scene).stem + "_fit"))
+    print(f"fitting {Path(args.scene).name} on {len(meas)} rows ...", flush=True)
+    res = fit(data, meas, device=args.device, max_iter=args.max_iter,
+              progress=None if args.quiet else lambda h: print(f"  iteration {h['iteration']}: RMSE {h['rmse_mm']:.3f} mm"
+                                                               f"{'' if h['accepted'] else ' (no step lowered it)'}",
+                                                               flush=True))
+    rep = res["report"]
+    header = (f"# Fitted by tdcr-warp fit from {Path(args.scene).name} on {', '.join(Path(d).name for d in args.data)}\n"
+              f"# ({len(meas)} rows): training RMSE {rep['training']['rmse_mm']:.3f} mm, aligned "
+              f"{rep['training']['rmse_aligned_mm']:.3f} mm; parameters and uncertainty in fit.json.\n")
+    _write_atomic(out / "fitted.toml", lambda tmp: Path(tmp).write_text(header + tomli_w.dumps(res["scene"])))
+    _write_predictions(out / "predictions.csv", meas, res["prediction"])
+    _write_json(out / "fit.json", rep | {"scene": str(args.scene), "data": [str(d) for d in args.data]})
+    t = rep["training"]
+    print(f"fit in {rep['wall_s']:.0f} s, {rep['iterations']} iterations: training RMSE {t['rmse_mm']:.3f} mm "
+          f"({t['rmse_percent_of_length']:.2f}% of the length), aligned {t['rmse_aligned_mm']:.3f} mm")
+    for name, v in rep["parameters"].items():
+        print(f"  {name:16s} {v['value']: .6g} +- {v['std']:.2g}")
+    print(f"wrote {out}/fitted.toml, fit.json, predictions.csv")
+    return 0
+
+
 def _failure_counts(status: np.ndarray, ok: np.ndarray) -> dict[str, int]:
     from .types import describe_status
     counts: dict[str, int] = {}
@@ -414,9 +499,15 @@ def build_parser() -> argparse.ArgumentParser:
                            ("montecarlo", "tip distribution (and control success) under [[uncertainty]]"),
                            ("workspace", "tip cloud over a [sweep] of tensions"),
                            ("gain-grid", "controller metrics over a [sweep.grid] of control gains"),
-                           ("ik", "inverse kinematics: tendon commands for the [ik] targets")):
+                           ("ik", "inverse kinematics: tendon commands for the [ik] targets"),
+                           ("predict", "predict measured tips (a scene with [hardware], a keypoint CSV)"),
+                           ("fit", "calibrate a [hardware] scene on keypoint CSVs; writes fitted.toml")):
         p = sub.add_parser(name, help=helptext)
         p.add_argument("scene", help="scene file (TOML)")
+        if name in ("predict", "fit"):
+            p.add_argument("data", nargs="+", help="keypoint CSV file(s) (tdcr_warp.hardware)")
+        if name == "fit":
+            p.add_argument("--max-iter", type=int, default=30, help="Levenberg-Marquardt iterations (default 30)")
         p.add_argument("--out", help="output directory (default: out/<scene name>)")
         p.add_argument("--device", default=None, help="cpu or cuda:0 (default: Warp's default device)")
         p.add_argument("--nodes", type=int, help="override [solver].nodes")
@@ -457,7 +548,8 @@ def main(argv=None) -> int:
             except (RuntimeError, ValueError) as e:
                 raise InputError(f"--device {args.device!r}: {e}") from None
         cmds = {"static": cmd_static, "simulate": cmd_simulate, "control": cmd_control, "montecarlo": cmd_sweep,
-                "workspace": cmd_sweep, "gain-grid": cmd_sweep, "ik": cmd_ik}
+                "workspace": cmd_sweep, "gain-grid": cmd_sweep, "ik": cmd_ik, "predict": cmd_predict,
+                "fit": cmd_fit}
         return cmds[args.command](args)
     except InputError as e:
         print(f"tdcr-warp: error: {e}", file=sys.stderr)

@@ -211,3 +211,27 @@ def plot_gain_grid(res: dict, fields: list, front: np.ndarray, out_dir: Path) ->
     axes[3].grid(True, alpha=0.3)
     fig.tight_layout()
     _save(fig, out_dir / "gain_grid.png")
+
+
+def plot_prediction(measured: np.ndarray, predicted: np.ndarray, converged: np.ndarray, path: Path) -> None:
+    """Measured against predicted tips (M, 3) [mm] in 3D, and the error per axis against row."""
+    fig = plt.figure(figsize=(12, 5))
+    ax3 = fig.add_subplot(1, 2, 1, projection="3d")
+    ok = converged
+    ax3.scatter(*measured[ok].T, s=4, color="C0", label="measured")
+    ax3.scatter(*predicted[ok].T, s=4, color="C1", label="predicted")
+    ax3.set_xlabel("x [mm]")
+    ax3.set_ylabel("y [mm]")
+    ax3.set_zlabel("z [mm]")
+    ax3.legend()
+    ax = fig.add_subplot(1, 2, 2)
+    err = np.where(ok[:, None], predicted - measured, np.nan)
+    for i, name in enumerate("xyz"):
+        ax.plot(err[:, i], lw=0.8, label=f"{name}")
+    ax.plot(np.linalg.norm(err, axis=1), color="k", lw=0.8, label="|error|")
+    ax.set_xlabel("row")
+    ax.set_ylabel("predicted - measured [mm]")
+    ax.legend()
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    _save(fig, path)

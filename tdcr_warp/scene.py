@@ -15,6 +15,8 @@ Tables and keys (SI units; see README "Scene format"):
                gain_k, epsilon, phi, tension_max, model_every (see tdcr_warp.control)
   [ik]         targets (B rows of 3, m), target_rotations (B 3x3 matrices), tension_max (N),
                displacement_range ([lo, hi], m), tol (m), max_iter (see tdcr_warp.ik)
+  [hardware]   servo_columns (the measurement CSV's column of each tendon), marker_offset and
+               base_offset (world frame, m) (see tdcr_warp.hardware)
 A robot scalar may be a list of B numbers and a vector a list of B vectors (per-rod values).
 Every error is an :class:`InputError` naming the table, the key and the value.
 """
@@ -45,7 +47,9 @@ CONTROL_KEYS = {"target", "target_tensions", "method", "input_model", "gain_c", 
                 "tension_max", "model_every"}
 SOLVER_KEYS = {f.name for f in fields(StaticOptions)} | {"preset"}
 IK_KEYS = {"targets", "target_rotations", "tension_max", "displacement_range", "tol", "max_iter"}
-TABLES = {"robot", "tendons", "loads", "actuation", "solver", "dynamics", "control", "sweep", "uncertainty", "ik"}
+HARDWARE_KEYS = {"servo_columns", "marker_offset", "base_offset"}
+TABLES = {"robot", "tendons", "loads", "actuation", "solver", "dynamics", "control", "sweep", "uncertainty", "ik",
+          "hardware"}
 
 
 @dataclass(frozen=True)
@@ -78,6 +82,7 @@ class Scene:
     displacements: np.ndarray | None = None
     slip: np.ndarray | None = None
     ik: dict | None = None
+    hardware: dict | None = None
 
     def static_command(self) -> dict:
         """The keyword arguments of solve_static for this scene's actuation."""
@@ -302,5 +307,17 @@ def scene_from_dict(data: dict) -> Scene:
                 ik[key] = _numbers(ik[key], f"[ik].{key}")
         if "max_iter" in ik:
             _integer(ik["max_iter"], "[ik].max_iter")
+    hardware = _table(data, "hardware", HARDWARE_KEYS) or None
+    if hardware is not None:
+        if "servo_columns" not in hardware:
+            raise InputError("missing key 'servo_columns' in [hardware]")
+        cols = hardware["servo_columns"]
+        if not (isinstance(cols, list) and len(cols) == robot.n_tendons and all(isinstance(c, str) for c in cols)):
+            raise InputError(f"[hardware].servo_columns: expected {robot.n_tendons} column names (one per tendon), "
+                             f"got {cols!r}")
+        for key in ("marker_offset", "base_offset"):
+            v = _numbers(hardware.get(key, [0.0, 0.0, 0.0]), f"[hardware].{key}")
+            if not (isinstance(v, list) and len(v) == 3):
+                raise InputError(f"[hardware].{key}: expected [x, y, z] in m, got {v!r}")
     return Scene(robot=robot, tensions=tensions, options=options, dynamics=dynamics, source=data, control=control,
-                 displacements=displacements, slip=slip, ik=ik)
+                 displacements=displacements, slip=slip, ik=ik, hardware=hardware)

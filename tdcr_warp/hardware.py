@@ -1,0 +1,321 @@
+"""Measured robots: read keypoint CSVs, predict the measured tips, calibrate a scene on them.
+
+A measurement CSV (e.g. the opencr-mujoco data of the Franka TDCRs) has one quasi-static
+keypoint per row: ``timestamp`` [s], ``pattern_label``, one column per servo with the motor's
+tendon displacement relative to the pretensioned zero [mm, positive = pull], and the measured
+tip ``tip_x``, ``tip_y``, ``tip_z`` [mm]. The scene's ``[hardware]`` table says which column
+drives which tendon (``servo_columns``, in tendon order; every tendon under displacement
+control) and where the measured point is: the tip p(L) plus ``marker_offset`` plus
+``base_offset`` (world frame, m; a marker above the tip, and the mocap frame's offset from the
+clamp). Every row is one rod: a whole file is one batched solve.
+
+``predict`` writes per row the predicted point and its error; ``metrics`` the Euclidean tip RMSE
+without re-alignment (``rmse_mm``), after removing the mean offset (``rmse_aligned_mm``, the
+convention of opencr-mujoco), median and 95th percentile. ``fit`` calibrates a lab's
+parameters by Levenberg-Marquardt on batched solves (``FIT_PARAMETERS``).
+"""
+
+from __future__ import annotations
+
+import copy
+import csv
+import math
+import time
+from dataclasses import dataclass, fields, replace
+from pathlib import Path
+
+import numpy as np
+
+from .robot import InputError
+from .scene import Scene, scene_from_dict
+from .statics import StaticSolution, solve_static
+
+__all__ = ["FIT_PARAMETERS", "Measurements", "fit", "metrics", "predict", "read_measurements"]
+
+GRID_ANGLES, GRID_ROWS = 12, 120  # the fit's start: a whole-robot rotation tried every 30 degrees on ~120 rows
+FIT_RTOL = 1e-4  # Levenberg-Marquardt stops when an accepted step lowers the cost by less than this
+MAX_SERVO_MM = 100.0  # a displacement beyond this is not a tendon's (the rods are ~0.2 m long)
+TIP_COLUMNS = ("tip_x", "tip_y", "tip_z")
+
+
+@dataclass(frozen=True)
+class Measurements:
+    """Rows of one or more CSV files: labels (M,), servo_mm (M, K) in the scene's tendon order,
+    tip_mm (M, 3), source (M,) the file of each row."""
+
+    labels: np.ndarray
+    servo_mm: np.ndarray
+    tip_mm: np.ndarray
+    source: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.labels)
+
+    def subset(self, rows: np.ndarray) -> "Measurements":
+        return Measurements(self.labels[rows], self.servo_mm[rows], self.tip_mm[rows], self.source[rows])
+
+
+def read_measurements(paths, servo_columns: list[str]) -> Measurements:
+    """Read keypoint CSVs; an InputError names the file, row and column of anything missing,
+    non-numeric, non-finite or out of range (|servo| > MAX_SERVO_MM), and an empty file."""
+    labels, servo, tips, source = [], [], [], []
+    for path in [paths] if isinstance(paths, (str, Path)) else paths:
+        path = Path(path)
+        try:
+            text = path.read_text()
+        except OSError as e:
+            raise InputError(f"{path}: cannot read it: {e.strerror or e}") from None
+        rows = list(csv.reader(text.splitlines()))
+        if not rows or not any(rows):
+            raise InputError(f"{path}: empty file (expected a header and keypoint rows)")
+        header = [h.strip() for h in rows[0]]
+        need = ["pattern_label", *servo_columns, *TIP_COLUMNS]
+        missing = [c for c in need if c not in header]
+        if missing:
+            raise InputError(f"{path}: missing column(s) {missing} (the header has {header})")
+        idx = [header.index(c) for c in need]
+        body = [r for r in rows[1:] if any(cell.strip() for cell in r)]
+        if not body:
+            raise InputError(f"{path}: no keypoint rows after the header")
+        for n, r in enumerate(body, start=2):
+            if len(r) < len(header):
+                raise InputError(f"{path}, row {n}: {len(r)} cells, the header has {len(header)}")
+            vals = []
+            for c, i in zip(need[1:], idx[1:]):
+                cell = r[i].strip()
+                try:
+                    v = float(cell)
+                except ValueError:
+                    raise InputError(f"{path}, row {n}, column {c}: not a number: {cell!r}") from None
+                if not math.isfinite(v):
+                    raise InputError(f"{path}, row {n}, column {c}: not finite: {cell!r}")
+                if c in servo_columns and abs(v) > MAX_SERVO_MM:
+                    raise InputError(f"{path}, row {n}, column {c}: {v!r} mm is beyond +-{MAX_SERVO_MM:g} mm")
+                vals.append(v)
+            labels.append(r[idx[0]].strip())
+            servo.append(vals[:len(servo_columns)])
+            tips.append(vals[len(servo_columns):])
+            source.append(str(path))
+    return Measurements(np.array(labels), np.array(servo, dtype=np.float64), np.array(tips, dtype=np.float64),
+                        np.array(source))
+
+
+def _hardware(scene: Scene) -> dict:
+    if scene.hardware is None:
+        raise InputError("this needs a [hardware] table (servo_columns, marker_offset, base_offset)")
+    bad = [k for k, t in enumerate(scene.robot.tendons) if t.control != "displacement"]
+    if bad:
+        raise InputError(f"[hardware]: tendon(s) {bad} are not under displacement control (the servos set lengths)")
+    return scene.hardware
+
+
+RETRY_ROUNDS = 4
+
+
+def _rows_of(sol: StaticSolution, rows: np.ndarray) -> StaticSolution:
+    """The rods ``rows`` of a solution (a warm start for a sub-batch)."""
+    return replace(sol, **{f.name: getattr(sol, f.name)[rows] for f in fields(sol)
+                           if isinstance(getattr(sol, f.name), np.ndarray) and getattr(sol, f.name).ndim
+                           and len(getattr(sol, f.name)) == len(sol.converged)})
+
+
+def _merge(sol: StaticSolution, part: StaticSolution, rows: np.ndarray, take: np.ndarray) -> StaticSolution:
+    """sol with rods rows[take] replaced by part's rods take."""
+    out = {}
+    for f in fields(sol):
+        v = getattr(sol, f.name)
+        if isinstance(v, np.ndarray) and v.ndim and len(v) == len(sol.converged):
+            v = v.copy()
+            v[rows[take]] = getattr(part, f.name)[take]
+        out[f.name] = v
+    return replace(sol, **out)
+
+
+def predict(scene: Scene, meas: Measurements, device=None, initial=None, **overrides) -> dict:
+    """One batched solve of every row, then (up to RETRY_ROUNDS batched solves of the rows that
+    did not converge) each such row again from the solution of the row before it in the same
+    file, the way the robot was recorded: every keypoint settled from the last. Returns
+    ``point_mm`` (M, 3) the predicted measured point, ``error_mm`` (M, 3) predicted less
+    measured, ``converged`` (M,), ``slack`` (M, K), ``retried`` (M,) bool, the ``solution`` and the
+    solve time ``wall_s``."""
+    hw = _hardware(scene)
+    t0 = time.perf_counter()
+    q = meas.servo_mm * 1e-3
+    tau = np.zeros((len(meas), scene.robot.n_tendons))
+    sol = solve_static(scene.robot, tau, displacements=q, options=scene.options, device=device, initial=initial,
+                       **overrides)
+    retried = np.zeros(len(meas), dtype=bool)
+    prev = np.r_[-1, np.arange(len(meas) - 1)]
+    prev[1:][meas.source[1:] != meas.source[:-1]] = -1
+    for _ in range(RETRY_ROUNDS):
+        rows = np.flatnonzero(~sol.converged & (prev >= 0))
+        rows = rows[sol.converged[prev[rows]]]
+        if not len(rows):
+            break
+        part = solve_static(scene.robot, tau[rows], displacements=q[rows], options=scene.options, device=device,
+                            initial=_rows_of(sol, prev[rows]), **overrides)
+        retried[rows] = True
+        if not part.converged.any():
+            break
+        sol = _merge(sol, part, rows, part.converged)
+    wall = time.perf_counter() - t0
+    point = 1e3 * (sol.tip_position + np.array(hw.get("marker_offset", [0, 0, 0])) +
+                   np.array(hw.get("base_offset", [0, 0, 0])))
+    return {"point_mm": point, "error_mm": point - meas.tip_mm, "converged": sol.converged, "slack": sol.slack,
+            "retried": retried, "solution": sol, "wall_s": wall}
+
+
+def metrics(error_mm: np.ndarray, converged: np.ndarray, length_m: float) -> dict:
+    """Tip errors [mm] over the converged rows: RMSE as is and after removing the mean offset,
+    median and 95th percentile, and the RMSE in % of the robot's length."""
+    e = error_mm[converged]
+    d = np.linalg.norm(e, axis=1)
+    da = np.linalg.norm(e - e.mean(axis=0), axis=1) if len(e) else d
+    rmse = float(np.sqrt(np.mean(d**2))) if len(d) else float("nan")
+    return {"rows": int(len(error_mm)), "converged": int(converged.sum()), "rmse_mm": rmse,
+            "rmse_aligned_mm": float(np.sqrt(np.mean(da**2))) if len(d) else float("nan"),
+            "median_mm": float(np.median(d)) if len(d) else float("nan"),
+            "p95_mm": float(np.percentile(d, 95)) if len(d) else float("nan"),
+            "mean_offset_mm": e.mean(axis=0).tolist() if len(e) else None,
+            "rmse_percent_of_length": 100 * rmse / (1e3 * length_m)}
+
+
+# The parameters ``fit`` calibrates: compliance (log-scaled, positive); pretension[s] (>= 0) and
+# angle[s] (a rotation of segment s's tendons about the backbone [rad]) per segment (the tendons
+# of one termination length); base_offset[i] [m]. The Young's modulus stays as measured: the
+# statics of a displacement-controlled rod do not change when every stiffness and force scales
+# by the same factor (E, 1 / compliance, pretension), so tip data alone cannot fix all three.
+FIT_PARAMETERS = ("compliance", "pretension", "angle", "base_offset")
+
+
+def _segments(data: dict) -> list[list[int]]:
+    """Tendon indices grouped by termination length (a segment), base to tip."""
+    L = data["robot"]["length"]
+    lengths = [t.get("length", L) for t in data["tendons"]]
+    return [[k for k, v in enumerate(lengths) if v == u] for u in sorted(set(lengths))]
+
+
+def _parameter_vector(data: dict) -> tuple[list[str], np.ndarray]:
+    segs = _segments(data)
+    names = ["compliance"] + [f"pretension[{s}]" for s in range(len(segs))] + \
+        [f"angle[{s}]" for s in range(len(segs))] + [f"base_offset[{i}]" for i in range(3)]
+    t = data["tendons"]
+    vals = [math.log(np.mean([x["compliance"] for x in t]))] + \
+        [float(np.mean([t[k]["pretension"] for k in g])) for g in segs] + [0.0] * len(segs) + \
+        list(data["hardware"].get("base_offset", [0.0, 0.0, 0.0]))
+    return names, np.array(vals, dtype=np.float64)
+
+
+def _apply(data0: dict, p: np.ndarray) -> dict:
+    """The scene dict with parameter vector p (angles relative to data0's tendon offsets)."""
+    data = copy.deepcopy(data0)
+    segs = _segments(data)
+    for t in data["tendons"]:
+        t["compliance"] = float(math.exp(p[0]))
+    S = len(segs)
+    for s, g in enumerate(segs):
+        c, sn = math.cos(p[1 + S + s]), math.sin(p[1 + S + s])
+        for k in g:
+            t = data["tendons"][k]
+            t["pretension"] = float(max(p[1 + s], 0.0))
+            x, y = t["offset"]
+            t["offset"] = [c * x - sn * y, sn * x + c * y]
+    data["hardware"]["base_offset"] = [float(v) for v in p[1 + 2 * S:]]
+    return data
+
+
+def fit(data: dict, meas: Measurements, *, max_iter: int = 30, device=None, progress=None) -> dict:
+    """Calibrate the scene dict ``data`` (with [hardware]) on ``meas`` by Levenberg-Marquardt:
+    the residual is every row's predicted less measured point [m]; the Jacobian by forward
+    differences of batched solves (one per physical parameter, warm-started from the
+    nominal solution; the base offset's columns are exact). Rows that do not converge are left
+    out of that evaluation. Returns the fitted scene dict, the parameters with their standard
+    deviations (sigma^2 (J^T J)^-1, sigma^2 the residual variance per coordinate), the training
+    metrics, iterations and time."""
+    t0 = time.perf_counter()
+    names, p = _parameter_vector(data)
+    base_data = copy.deepcopy(data)
+    S = (len(p) - 4) // 2
+    lo = np.array([math.log(1e-7)] + [0.0] * S + [-0.6] * S + [-0.05] * 3)
+    hi = np.array([math.log(1e-1)] + [50.0] * S + [0.6] * S + [0.05] * 3)
+    steps = np.array([1e-3] + [1e-3] * S + [1e-4] * S + [0.0] * 3)
+    n_phys = len(p) - 3
+
+    def evaluate(q, warm=None):
+        sc = scene_from_dict(_apply(base_data, q))
+        out = predict(sc, meas, device=device, initial=warm)
+        return out
+
+    # the tendons' angular position as a whole, by a grid search first (an angle can be off by
+    # a half turn, far outside the basin of Gauss-Newton; opencr-mujoco's v6 description is)
+    probe = meas.subset(np.arange(0, len(meas), max(1, len(meas) // GRID_ROWS)))
+    best = None
+    for a in np.arange(GRID_ANGLES) * 2 * math.pi / GRID_ANGLES:
+        q = p.copy()
+        q[1 + S:1 + 2 * S] = a
+        out = predict(scene_from_dict(_apply(base_data, q)), probe, device=device)
+        e = metrics(out["error_mm"], out["converged"], 1.0)["rmse_aligned_mm"]
+        if out["converged"].mean() > 0.5 and (best is None or e < best[0]):
+            best = (e, a)
+    if best is None:
+        raise InputError("fit: the start converges on fewer than half of the rows at every angle tried")
+    base_data = _apply(base_data, np.r_[p[:1 + S], np.full(S, best[1]), p[1 + 2 * S:]])
+    cur = evaluate(p)
+    lam, it, history = 1e-3, 0, [{"grid_angle_rad": float(best[1]), "grid_rmse_aligned_mm": float(best[0])}]
+    for it in range(1, max_iter + 1):
+        ok = cur["converged"]
+        r = cur["error_mm"][ok].ravel() * 1e-3
+        J = np.zeros((len(r), len(p)))
+        for j in range(n_phys):
+            q = p.copy()
+            q[j] += steps[j]
+            pr = evaluate(q, cur["solution"])
+            both = pr["converged"][ok]
+            col = (pr["error_mm"][ok] - cur["error_mm"][ok]) * 1e-3 / steps[j]
+            J[:, j] = np.where(np.repeat(both, 3), col.ravel(), 0.0)
+        for i in range(3):
+            J[i::3, n_phys + i] = 1.0
+        cost = float(r @ r)
+        accepted = False
+        for _ in range(8):
+            A = J.T @ J
+            dp = np.linalg.solve(A + lam * np.diag(np.diag(A) + 1e-30), -J.T @ r)
+            q = np.clip(p + dp, lo, hi)
+            trial = evaluate(q, cur["solution"])
+            rt = trial["error_mm"][ok & trial["converged"]].ravel() * 1e-3
+            if trial["converged"].sum() >= ok.sum() and float(rt @ rt) < cost:
+                p, cur, lam, accepted = q, trial, lam / 3, True
+                break
+            lam *= 4
+        history.append({"iteration": it, "rmse_mm": float(np.sqrt(cost / max(len(r) // 3, 1)) * 1e3),
+                        "lambda": lam, "accepted": accepted})
+        if progress:
+            progress(history[-1])
+        if not accepted or np.abs(dp).max() < 1e-7:
+            break
+        new_cost = float(np.sum(cur["error_mm"][cur["converged"]] ** 2)) * 1e-6
+        if cost - new_cost < FIT_RTOL * cost:  # the cost has stopped falling
+            break
+    ok = cur["converged"]
+    r = cur["error_mm"][ok].ravel() * 1e-3
+    dof = max(len(r) - len(p), 1)
+    sigma2 = float(r @ r) / dof
+    try:
+        cov = sigma2 * np.linalg.inv(J.T @ J)
+        std = np.sqrt(np.clip(np.diag(cov), 0, None))
+    except np.linalg.LinAlgError:
+        std = np.full(len(p), np.nan)
+    fitted = _apply(base_data, p)
+    L = fitted["robot"]["length"]
+    report = {"parameters": {n: {"value": _natural(n, v), "std": _natural_std(n, v, s)} for n, v, s in zip(names, p, std)},
+              "iterations": it, "history": history, "wall_s": time.perf_counter() - t0,
+              "training": metrics(cur["error_mm"], ok, L), "rows": len(meas)}
+    return {"scene": fitted, "report": report, "prediction": cur}
+
+
+def _natural(name: str, v: float) -> float:
+    return float(math.exp(v)) if name == "compliance" else float(v)
+
+
+def _natural_std(name: str, v: float, s: float) -> float:
+    return float(math.exp(v) * s) if name == "compliance" else float(s)

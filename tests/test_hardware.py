@@ -1,0 +1,135 @@
+"""Measured robots (tdcr_warp/hardware.py, `tdcr-warp fit` and `predict`): the keypoint reader's
+errors, predictions and metrics, and a calibration that recovers known parameters from
+synthetic measurements (tips of this simulator plus noise) from a wrong start."""
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+import tdcr_warp as tw
+from tdcr_warp.cli import main
+from tdcr_warp.hardware import fit, metrics, predict, read_measurements
+from tdcr_warp.scene import scene_from_dict
+
+COLS = [f"servo_{k}_mm" for k in range(6)]
+HEADER = "timestamp,pattern_label," + ",".join(COLS) + ",tip_x,tip_y,tip_z"
+
+
+def scene_dict(compliance=2e-4, pretension=(0.5, 1.0), angle=(0.05, -0.08), base=(2e-3, -1e-3, 5e-3)):
+    """Two segments (70 and 150 mm) of three tendons each at 4.5 mm, under displacement control."""
+    tendons = []
+    for s, end in enumerate((0.07, 0.15)):
+        for i in range(3):
+            a = angle[s] + i * 2 * math.pi / 3
+            tendons.append({"offset": [0.0045 * math.cos(a), 0.0045 * math.sin(a)], "length": end,
+                            "control": "displacement", "compliance": compliance, "pretension": pretension[s]})
+    return {"robot": {"length": 0.15, "youngs_modulus": 50e9, "poisson_ratio": 0.3, "radius": 5e-4, "density": 0.0},
+            "tendons": tendons, "actuation": {"tensions": [[0.0] * 6]}, "solver": {"nodes": 10},
+            "hardware": {"servo_columns": COLS, "marker_offset": [0.0, 0.0, 0.008], "base_offset": list(base)}}
+
+
+def synthetic_csv(path, rows=60, noise_mm=0.05, seed=0):
+    """Keypoints of the true scene: one or two tendons pulled up to 1.5 mm, the others let out
+    up to 1 mm; the measured tips are the predicted ones plus Gaussian noise."""
+    rng = np.random.default_rng(seed)
+    q = -rng.uniform(0.0, 1.0, (rows, 6))
+    for r in range(rows):
+        for k in rng.choice(6, size=rng.integers(1, 3), replace=False):
+            q[r, k] = rng.uniform(0.2, 1.5)
+    truth = scene_from_dict(scene_dict())
+    meas = read_measurements_from(q, np.zeros((rows, 3)))
+    pred = predict(truth, meas)
+    assert pred["converged"].all()
+    tips = pred["point_mm"] + rng.normal(0.0, noise_mm, (rows, 3))
+    lines = [HEADER] + [f"{r * 0.6},synthetic_{r % 5}," + ",".join(f"{v:.9f}" for v in q[r]) + ","
+                        + ",".join(f"{v:.9f}" for v in tips[r]) for r in range(rows)]
+    path.write_text("\n".join(lines) + "\n")
+    return q, tips
+
+
+def read_measurements_from(q, tips):
+    from tdcr_warp.hardware import Measurements
+    n = len(q)
+    return Measurements(np.array(["x"] * n), q, tips, np.array(["mem"] * n))
+
+
+def test_calibration_recovers_known_parameters_within_their_uncertainty(tmp_path):
+    csv = tmp_path / "synthetic.csv"
+    synthetic_csv(csv)
+    meas = read_measurements(csv, COLS)
+    wrong = scene_dict(compliance=6e-4, pretension=(1.5, 0.3), angle=(0.0, 0.0), base=(0.0, 0.0, 0.0))
+    res = fit(wrong, meas)
+    par = res["report"]["parameters"]
+    # the truth relative to the wrong start's tendon angles (the fit rotates the segments it was given)
+    truth = {"compliance": 2e-4, "pretension[0]": 0.5, "pretension[1]": 1.0, "angle[0]": 0.05, "angle[1]": -0.08,
+             "base_offset[0]": 2e-3, "base_offset[1]": -1e-3, "base_offset[2]": 5e-3}
+    for name, true in truth.items():
+        got, std = par[name]["value"], par[name]["std"]
+        assert abs(got - true) < 4 * std + 1e-12, (name, got, true, std)
+        assert std < 0.2 * max(abs(true), 0.01), (name, std)  # and the uncertainty is informative
+    assert res["report"]["training"]["rmse_mm"] < 0.1  # the noise is 0.05 mm per axis
+    again = fit(wrong, meas)  # reproducible
+    assert all(abs(again["report"]["parameters"][n]["value"] - v["value"]) <= 1e-6 * max(abs(v["value"]), 1e-12)
+               for n, v in par.items())
+
+
+def test_predict_cli_writes_one_row_per_input_and_the_metrics(tmp_path):
+    csv = tmp_path / "synthetic.csv"
+    q, tips = synthetic_csv(csv, rows=12)
+    scene = tmp_path / "truth.toml"
+    import tomli_w
+    scene.write_text(tomli_w.dumps(scene_dict()))
+    out = tmp_path / "pred"
+    assert main(["predict", str(scene), str(csv), "--out", str(out)]) == 0
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["rows"] == 12 and m["converged"] == 12 and m["rmse_mm"] < 0.2 and m["rmse_aligned_mm"] <= m["rmse_mm"]
+    for key in ("median_mm", "p95_mm", "rmse_percent_of_length", "ms_per_row"):
+        assert key in m
+    lines = (out / "predictions.csv").read_text().splitlines()
+    assert len(lines) == 13 and lines[0].startswith("row,source,pattern_label,pred_x_mm")
+    assert (out / "predict.png").exists()
+
+
+def test_metrics_remove_the_mean_offset_for_the_aligned_rmse():
+    err = np.array([[1.0, 0.0, 0.0], [3.0, 0.0, 0.0]])
+    m = metrics(err, np.array([True, True]), 0.2)
+    assert m["rmse_mm"] == pytest.approx(math.sqrt(5.0)) and m["rmse_aligned_mm"] == pytest.approx(1.0)
+    assert m["rmse_percent_of_length"] == pytest.approx(100 * math.sqrt(5.0) / 200)
+
+
+@pytest.mark.parametrize("body, words", [
+    ("", "empty file"),
+    ("timestamp,pattern_label,tip_x,tip_y,tip_z\n0,a,1,2,3\n", "missing column(s) ['servo_0_mm'"),
+    (HEADER + "\n0,a," + ",".join(["0"] * 5) + ",nan,1,2,3\n", "row 2, column servo_5_mm: not finite"),
+    (HEADER + "\n0,a,1e9," + ",".join(["0"] * 5) + ",1,2,3\n", "row 2, column servo_0_mm: 1000000000.0 mm is beyond"),
+    (HEADER + "\n0,a," + ",".join(["0"] * 6) + ",1,two,3\n", "row 2, column tip_y: not a number: 'two'"),
+    (HEADER + "\n", "no keypoint rows"),
+])
+def test_bad_data_exits_2_naming_file_row_and_column(tmp_path, capsys, body, words):
+    import tomli_w
+    scene = tmp_path / "s.toml"
+    scene.write_text(tomli_w.dumps(scene_dict()))
+    data = tmp_path / "bad.csv"
+    data.write_text(body)
+    out = tmp_path / "o"
+    for cmd in ("predict", "fit"):
+        assert main([cmd, str(scene), str(data), "--out", str(out)]) == 2
+        err = capsys.readouterr().err
+        assert words in err and "bad.csv" in err, err
+    assert not (out / "metrics.json").exists() and not (out / "fitted.toml").exists()
+
+
+def test_hardware_table_errors(tmp_path, capsys):
+    import tomli_w
+    d = scene_dict()
+    d["hardware"]["servo_columns"] = COLS[:3]
+    scene = tmp_path / "s.toml"
+    scene.write_text(tomli_w.dumps(d))
+    assert main(["predict", str(scene), str(scene), "--out", str(tmp_path / "o")]) == 2
+    assert "[hardware].servo_columns: expected 6 column names" in capsys.readouterr().err
+    d = scene_dict()
+    d["tendons"][0]["control"] = "tension"
+    with pytest.raises(tw.InputError, match="not under displacement control"):
+        predict(scene_from_dict(d), read_measurements_from(np.zeros((1, 6)), np.zeros((1, 3))))
