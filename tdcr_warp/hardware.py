@@ -180,9 +180,10 @@ def metrics(error_mm: np.ndarray, converged: np.ndarray, length_m: float) -> dic
             "rmse_percent_of_length": 100 * rmse / (1e3 * length_m)}
 
 
-# The parameters ``fit`` calibrates: compliance (log-scaled, positive); pretension[s] (>= 0) and
-# angle[s] (a rotation of segment s's tendons about the backbone [rad]) per segment (the tendons
-# of one termination length); base_offset[i] [m]. The Young's modulus stays as measured: the
+# The parameters ``fit`` calibrates (``_parameter_spec``): compliance (log-scaled, positive);
+# pretension[s] (>= 0) per segment (the tendons of one termination length); angle[j], a
+# rotation about the backbone [rad] of segment j's tendons (detail "tendon": of tendon j, and a
+# compliance per segment); base_offset[i] [m]. The Young's modulus stays as measured: the
 # statics of a displacement-controlled rod do not change when every stiffness and force scales
 # by the same factor (E, 1 / compliance, pretension), so tip data alone cannot fix all three.
 FIT_PARAMETERS = ("compliance", "pretension", "angle", "base_offset")
@@ -195,36 +196,61 @@ def _segments(data: dict) -> list[list[int]]:
     return [[k for k, v in enumerate(lengths) if v == u] for u in sorted(set(lengths))]
 
 
-def _parameter_vector(data: dict) -> tuple[list[str], np.ndarray]:
+DETAILS = ("segment", "tendon")
+
+
+def _parameter_spec(data: dict, detail: str) -> list[dict]:
+    """The fitted parameters: name, kind, the tendons (or axis) each acts on, start value,
+    bounds and difference step. detail "segment": one compliance, a pretension and a rotation
+    per segment; "tendon": a compliance and a pretension per segment and a rotation per tendon."""
+    if detail not in DETAILS:
+        raise InputError(f"fit detail must be one of {DETAILS}, got {detail!r}")
     segs = _segments(data)
-    names = ["compliance"] + [f"pretension[{s}]" for s in range(len(segs))] + \
-        [f"angle[{s}]" for s in range(len(segs))] + [f"base_offset[{i}]" for i in range(3)]
     t = data["tendons"]
-    vals = [math.log(np.mean([x["compliance"] for x in t]))] + \
-        [float(np.mean([t[k]["pretension"] for k in g])) for g in segs] + [0.0] * len(segs) + \
-        list(data["hardware"].get("base_offset", [0.0, 0.0, 0.0]))
-    return names, np.array(vals, dtype=np.float64)
+    everyone = [k for g in segs for k in g]
+    spec = []
+    for s, g in enumerate(segs if detail == "tendon" else [everyone]):
+        spec.append({"name": "compliance" if detail == "segment" else f"compliance[{s}]", "kind": "compliance",
+                     "on": g, "value": math.log(np.mean([t[k]["compliance"] for k in g])),
+                     "lo": math.log(1e-7), "hi": math.log(1e-1), "step": 1e-3})
+    for s, g in enumerate(segs):
+        spec.append({"name": f"pretension[{s}]", "kind": "pretension", "on": g,
+                     "value": float(np.mean([t[k]["pretension"] for k in g])), "lo": 0.0, "hi": 50.0, "step": 1e-3})
+    for a, g in enumerate([[k] for k in everyone] if detail == "tendon" else segs):
+        spec.append({"name": f"angle[{a}]", "kind": "angle", "on": g, "value": 0.0, "lo": -0.6, "hi": 0.6,
+                     "step": 1e-4})
+    for i in range(3):
+        spec.append({"name": f"base_offset[{i}]", "kind": "offset", "on": i,
+                     "value": float(data["hardware"].get("base_offset", [0.0, 0.0, 0.0])[i]), "lo": -0.05,
+                     "hi": 0.05, "step": 0.0})
+    return spec
 
 
-def _apply(data0: dict, p: np.ndarray) -> dict:
+def _apply(data0: dict, spec: list[dict], p: np.ndarray) -> dict:
     """The scene dict with parameter vector p (angles relative to data0's tendon offsets)."""
     data = copy.deepcopy(data0)
-    segs = _segments(data)
-    for t in data["tendons"]:
-        t["compliance"] = float(math.exp(p[0]))
-    S = len(segs)
-    for s, g in enumerate(segs):
-        c, sn = math.cos(p[1 + S + s]), math.sin(p[1 + S + s])
-        for k in g:
-            t = data["tendons"][k]
-            t["pretension"] = float(max(p[1 + s], 0.0))
-            x, y = t["offset"]
-            t["offset"] = [c * x - sn * y, sn * x + c * y]
-    data["hardware"]["base_offset"] = [float(v) for v in p[1 + 2 * S:]]
+    t = data["tendons"]
+    for sp, v in zip(spec, p):
+        if sp["kind"] == "compliance":
+            for k in sp["on"]:
+                t[k]["compliance"] = float(math.exp(v))
+        elif sp["kind"] == "pretension":
+            for k in sp["on"]:
+                t[k]["pretension"] = float(max(v, 0.0))
+        elif sp["kind"] == "angle":
+            c, sn = math.cos(v), math.sin(v)
+            for k in sp["on"]:
+                x, y = t[k]["offset"]
+                t[k]["offset"] = [c * x - sn * y, sn * x + c * y]
+        else:
+            data["hardware"].setdefault("base_offset", [0.0, 0.0, 0.0])
+            data["hardware"]["base_offset"] = list(data["hardware"]["base_offset"])
+            data["hardware"]["base_offset"][sp["on"]] = float(v)
     return data
 
 
-def fit(data: dict, meas: Measurements, *, max_iter: int = 30, device=None, progress=None) -> dict:
+def fit(data: dict, meas: Measurements, *, detail: str = "segment", max_iter: int = 30, device=None,
+        progress=None) -> dict:
     """Calibrate the scene dict ``data`` (with [hardware]) on ``meas`` by Levenberg-Marquardt:
     the residual is every row's predicted less measured point [m]; the Jacobian by forward
     differences of batched solves (one per physical parameter, warm-started from the
@@ -233,16 +259,16 @@ def fit(data: dict, meas: Measurements, *, max_iter: int = 30, device=None, prog
     deviations (sigma^2 (J^T J)^-1, sigma^2 the residual variance per coordinate), the training
     metrics, iterations and time."""
     t0 = time.perf_counter()
-    names, p = _parameter_vector(data)
+    spec = _parameter_spec(data, detail)
+    names = [sp["name"] for sp in spec]
+    p = np.array([sp["value"] for sp in spec])
+    lo, hi, steps = (np.array([sp[k] for sp in spec]) for k in ("lo", "hi", "step"))
+    angles = np.array([sp["kind"] == "angle" for sp in spec])
     base_data = copy.deepcopy(data)
-    S = (len(p) - 4) // 2
-    lo = np.array([math.log(1e-7)] + [0.0] * S + [-0.6] * S + [-0.05] * 3)
-    hi = np.array([math.log(1e-1)] + [50.0] * S + [0.6] * S + [0.05] * 3)
-    steps = np.array([1e-3] + [1e-3] * S + [1e-4] * S + [0.0] * 3)
     n_phys = len(p) - 3
 
     def evaluate(q, warm=None):
-        sc = scene_from_dict(_apply(base_data, q))
+        sc = scene_from_dict(_apply(base_data, spec, q))
         out = predict(sc, meas, device=device, initial=warm)
         return out
 
@@ -251,15 +277,15 @@ def fit(data: dict, meas: Measurements, *, max_iter: int = 30, device=None, prog
     probe = meas.subset(np.arange(0, len(meas), max(1, len(meas) // GRID_ROWS)))
     best = None
     for a in np.arange(GRID_ANGLES) * 2 * math.pi / GRID_ANGLES:
-        q = p.copy()
-        q[1 + S:1 + 2 * S] = a
-        out = predict(scene_from_dict(_apply(base_data, q)), probe, device=device)
+        q = np.where(angles, a, p)
+        out = predict(scene_from_dict(_apply(base_data, spec, q)), probe, device=device)
         e = metrics(out["error_mm"], out["converged"], 1.0)["rmse_aligned_mm"]
         if out["converged"].mean() > 0.5 and (best is None or e < best[0]):
             best = (e, a)
     if best is None:
         raise InputError("fit: the start converges on fewer than half of the rows at every angle tried")
-    base_data = _apply(base_data, np.r_[p[:1 + S], np.full(S, best[1]), p[1 + 2 * S:]])
+    base_data = _apply(base_data, spec, np.where(angles, best[1], p))
+    p = np.where(angles, 0.0, p)  # the rotations are now relative to the grid's
     cur = evaluate(p)
     lam, it, history = 1e-3, 0, [{"grid_angle_rad": float(best[1]), "grid_rmse_aligned_mm": float(best[0])}]
     for it in range(1, max_iter + 1):
@@ -305,7 +331,7 @@ def fit(data: dict, meas: Measurements, *, max_iter: int = 30, device=None, prog
         std = np.sqrt(np.clip(np.diag(cov), 0, None))
     except np.linalg.LinAlgError:
         std = np.full(len(p), np.nan)
-    fitted = _apply(base_data, p)
+    fitted = _apply(base_data, spec, p)
     L = fitted["robot"]["length"]
     report = {"parameters": {n: {"value": _natural(n, v), "std": _natural_std(n, v, s)} for n, v, s in zip(names, p, std)},
               "iterations": it, "history": history, "wall_s": time.perf_counter() - t0,
@@ -314,8 +340,8 @@ def fit(data: dict, meas: Measurements, *, max_iter: int = 30, device=None, prog
 
 
 def _natural(name: str, v: float) -> float:
-    return float(math.exp(v)) if name == "compliance" else float(v)
+    return float(math.exp(v)) if name.startswith("compliance") else float(v)
 
 
 def _natural_std(name: str, v: float, s: float) -> float:
-    return float(math.exp(v) * s) if name == "compliance" else float(s)
+    return float(math.exp(v) * s) if name.startswith("compliance") else float(s)

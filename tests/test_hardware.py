@@ -133,3 +133,18 @@ def test_hardware_table_errors(tmp_path, capsys):
     d["tendons"][0]["control"] = "tension"
     with pytest.raises(tw.InputError, match="not under displacement control"):
         predict(scene_from_dict(d), read_measurements_from(np.zeros((1, 6)), np.zeros((1, 3))))
+
+
+def test_fit_cli_writes_a_scene_that_predict_reads(tmp_path):
+    import tomli_w
+    csv = tmp_path / "synthetic.csv"
+    synthetic_csv(csv, rows=30)
+    scene = tmp_path / "start.toml"
+    scene.write_text(tomli_w.dumps(scene_dict(compliance=4e-4, angle=(0.0, 0.0), base=(0.0, 0.0, 0.0))))
+    out = tmp_path / "fit"
+    assert main(["fit", str(scene), str(csv), "--out", str(out), "--max-iter", "4", "--quiet"]) == 0
+    rep = json.loads((out / "fit.json").read_text())
+    assert set(rep["parameters"]) >= {"compliance", "pretension[0]", "angle[1]", "base_offset[2]"}
+    assert main(["predict", str(out / "fitted.toml"), str(csv), "--out", str(tmp_path / "p")]) == 0
+    m = json.loads((tmp_path / "p" / "metrics.json").read_text())
+    assert m["rmse_mm"] == pytest.approx(rep["training"]["rmse_mm"], rel=1e-6)
