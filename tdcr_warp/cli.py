@@ -377,7 +377,7 @@ def cmd_fit(args) -> int:
     meas = read_measurements(args.data, scene.hardware["servo_columns"])
     out = _out_dir(args, Path("out") / (Path(args.scene).stem + "_fit"))
     print(f"fitting {Path(args.scene).name} on {len(meas)} rows ...", flush=True)
-    res = fit(data, meas, device=args.device, max_iter=args.max_iter,
+    res = fit(data, meas, detail=args.detail, device=args.device, max_iter=args.max_iter,
               progress=None if args.quiet else lambda h: print(f"  iteration {h['iteration']}: RMSE {h['rmse_mm']:.3f} mm"
                                                                f"{'' if h['accepted'] else ' (no step lowered it)'}",
                                                                flush=True))
@@ -508,6 +508,9 @@ def build_parser() -> argparse.ArgumentParser:
             p.add_argument("data", nargs="+", help="keypoint CSV file(s) (tdcr_warp.hardware)")
         if name == "fit":
             p.add_argument("--max-iter", type=int, default=30, help="Levenberg-Marquardt iterations (default 30)")
+            p.add_argument("--detail", choices=["segment", "tendon"], default="tendon",
+                           help="a rotation per tendon and a compliance per segment (default), or one per segment "
+                                "and one compliance")
         p.add_argument("--out", help="output directory (default: out/<scene name>)")
         p.add_argument("--device", default=None, help="cpu or cuda:0 (default: Warp's default device)")
         p.add_argument("--nodes", type=int, help="override [solver].nodes")

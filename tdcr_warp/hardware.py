@@ -249,7 +249,7 @@ def _apply(data0: dict, spec: list[dict], p: np.ndarray) -> dict:
     return data
 
 
-def fit(data: dict, meas: Measurements, *, detail: str = "segment", max_iter: int = 30, device=None,
+def fit(data: dict, meas: Measurements, *, detail: str = "tendon", max_iter: int = 30, device=None,
         progress=None) -> dict:
     """Calibrate the scene dict ``data`` (with [hardware]) on ``meas`` by Levenberg-Marquardt:
     the residual is every row's predicted less measured point [m]; the Jacobian by forward

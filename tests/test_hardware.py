@@ -55,22 +55,28 @@ def read_measurements_from(q, tips):
     return Measurements(np.array(["x"] * n), q, tips, np.array(["mem"] * n))
 
 
-def test_calibration_recovers_known_parameters_within_their_uncertainty(tmp_path):
+@pytest.mark.parametrize("detail", ["segment", "tendon"])
+def test_calibration_recovers_known_parameters_within_their_uncertainty(tmp_path, detail):
     csv = tmp_path / "synthetic.csv"
     synthetic_csv(csv)
     meas = read_measurements(csv, COLS)
     wrong = scene_dict(compliance=6e-4, pretension=(1.5, 0.3), angle=(0.0, 0.0), base=(0.0, 0.0, 0.0))
-    res = fit(wrong, meas)
+    res = fit(wrong, meas, detail=detail)
     par = res["report"]["parameters"]
-    # the truth relative to the wrong start's tendon angles (the fit rotates the segments it was given)
-    truth = {"compliance": 2e-4, "pretension[0]": 0.5, "pretension[1]": 1.0, "angle[0]": 0.05, "angle[1]": -0.08,
-             "base_offset[0]": 2e-3, "base_offset[1]": -1e-3, "base_offset[2]": 5e-3}
+    # the truth relative to the wrong start's tendon angles (the fit rotates the tendons it was given)
+    truth = {"pretension[0]": 0.5, "pretension[1]": 1.0, "base_offset[0]": 2e-3, "base_offset[1]": -1e-3,
+             "base_offset[2]": 5e-3}
+    if detail == "segment":
+        truth |= {"compliance": 2e-4, "angle[0]": 0.05, "angle[1]": -0.08}
+    else:
+        truth |= {"compliance[0]": 2e-4, "compliance[1]": 2e-4} | {f"angle[{k}]": 0.05 if k < 3 else -0.08
+                                                                   for k in range(6)}
     for name, true in truth.items():
         got, std = par[name]["value"], par[name]["std"]
         assert abs(got - true) < 4 * std + 1e-12, (name, got, true, std)
         assert std < 0.2 * max(abs(true), 0.01), (name, std)  # and the uncertainty is informative
     assert res["report"]["training"]["rmse_mm"] < 0.1  # the noise is 0.05 mm per axis
-    again = fit(wrong, meas)  # reproducible
+    again = fit(wrong, meas, detail=detail)  # reproducible
     assert all(abs(again["report"]["parameters"][n]["value"] - v["value"]) <= 1e-6 * max(abs(v["value"]), 1e-12)
                for n, v in par.items())
 
@@ -144,7 +150,7 @@ def test_fit_cli_writes_a_scene_that_predict_reads(tmp_path):
     out = tmp_path / "fit"
     assert main(["fit", str(scene), str(csv), "--out", str(out), "--max-iter", "4", "--quiet"]) == 0
     rep = json.loads((out / "fit.json").read_text())
-    assert set(rep["parameters"]) >= {"compliance", "pretension[0]", "angle[1]", "base_offset[2]"}
+    assert set(rep["parameters"]) >= {"compliance[1]", "pretension[0]", "angle[5]", "base_offset[2]"}
     assert main(["predict", str(out / "fitted.toml"), str(csv), "--out", str(tmp_path / "p")]) == 0
     m = json.loads((tmp_path / "p" / "metrics.json").read_text())
     assert m["rmse_mm"] == pytest.approx(rep["training"]["rmse_mm"], rel=1e-6)
