@@ -37,7 +37,10 @@ METHODS = ("smc", "boundary_layer")
 INPUT_MODELS = ("jacobian", "alpha")
 
 
-def _per_rod(name: str, value, B: int, tail: tuple[int, ...]) -> np.ndarray:
+def per_rod(name: str, value, B: int, tail: tuple[int, ...], bound: bool = False) -> np.ndarray:
+    """``value`` as (B,) + tail: a number, shape ``tail`` (shared) or per rod; an InputError
+    names ``name`` for any other shape or a non-finite entry (``bound``: an upper bound, +inf
+    allowed)."""
     arr = np.array(value, dtype=np.float64)
     if arr.shape == () and tail:
         arr = np.full(tail, float(arr))
@@ -45,7 +48,7 @@ def _per_rod(name: str, value, B: int, tail: tuple[int, ...]) -> np.ndarray:
         arr = np.broadcast_to(arr, (B,) + tail)
     if arr.shape != (B,) + tail:
         raise InputError(f"{name}: expected a number, shape {tail} or {(B,) + tail}, got shape {np.shape(value)}")
-    if not np.isfinite(arr).all():
+    if not (np.isfinite(arr) | (bound & (arr == np.inf))).all():
         raise InputError(f"{name}: non-finite value in {value!r}")
     return np.array(arr)
 
@@ -103,13 +106,12 @@ class TipController:
         if K == 0:
             raise InputError("control needs at least one tendon")
         self.sim, self.method, self.input_model = sim, method, input_model
-        self.target = _per_rod("target", target, B, (3,))
-        self.C = _per_rod("gain_c", gain_c, B, (3,))
-        self.k = _per_rod("gain_k", gain_k, B, (3,))
-        self.eps = _per_rod("epsilon", epsilon, B, ())
-        self.phi = _per_rod("phi", phi, B, ())
-        self.tau_max = _per_rod("tension_max", tension_max, B, (K,)) if np.ndim(tension_max) else \
-            np.full((B, K), float(tension_max))
+        self.target = per_rod("target", target, B, (3,))
+        self.C = per_rod("gain_c", gain_c, B, (3,))
+        self.k = per_rod("gain_k", gain_k, B, (3,))
+        self.eps = per_rod("epsilon", epsilon, B, ())
+        self.phi = per_rod("phi", phi, B, ())
+        self.tau_max = per_rod("tension_max", tension_max, B, (K,), bound=True)
         for name, arr in (("gain_c", self.C), ("gain_k", self.k), ("tension_max", self.tau_max)):
             if (arr <= 0).any():
                 raise InputError(f"{name} must be positive, got {arr[arr <= 0][0]!r}")

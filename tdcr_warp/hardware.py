@@ -21,14 +21,14 @@ import copy
 import csv
 import math
 import time
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from .robot import InputError
 from .scene import Scene, scene_from_dict
-from .statics import StaticSolution, solve_static
+from .statics import solve_static
 
 __all__ = ["FIT_PARAMETERS", "Measurements", "fit", "metrics", "predict", "read_measurements"]
 
@@ -112,25 +112,6 @@ def _hardware(scene: Scene) -> dict:
 RETRY_ROUNDS = 4
 
 
-def _rows_of(sol: StaticSolution, rows: np.ndarray) -> StaticSolution:
-    """The rods ``rows`` of a solution (a warm start for a sub-batch)."""
-    return replace(sol, **{f.name: getattr(sol, f.name)[rows] for f in fields(sol)
-                           if isinstance(getattr(sol, f.name), np.ndarray) and getattr(sol, f.name).ndim
-                           and len(getattr(sol, f.name)) == len(sol.converged)})
-
-
-def _merge(sol: StaticSolution, part: StaticSolution, rows: np.ndarray, take: np.ndarray) -> StaticSolution:
-    """sol with rods rows[take] replaced by part's rods take."""
-    out = {}
-    for f in fields(sol):
-        v = getattr(sol, f.name)
-        if isinstance(v, np.ndarray) and v.ndim and len(v) == len(sol.converged):
-            v = v.copy()
-            v[rows[take]] = getattr(part, f.name)[take]
-        out[f.name] = v
-    return replace(sol, **out)
-
-
 def predict(scene: Scene, meas: Measurements, device=None, initial=None, **overrides) -> dict:
     """One batched solve of every row, then (up to RETRY_ROUNDS batched solves of the rows that
     did not converge) each such row again from the solution of the row before it in the same
@@ -153,11 +134,11 @@ def predict(scene: Scene, meas: Measurements, device=None, initial=None, **overr
         if not len(rows):
             break
         part = solve_static(scene.robot, tau[rows], displacements=q[rows], options=scene.options, device=device,
-                            initial=_rows_of(sol, prev[rows]), **overrides)
+                            initial=sol.rows(prev[rows]), **overrides)
         retried[rows] = True
         if not part.converged.any():
             break
-        sol = _merge(sol, part, rows, part.converged)
+        sol = sol.replaced(rows[part.converged], part.rows(part.converged))
     wall = time.perf_counter() - t0
     point = 1e3 * (sol.tip_position + np.array(hw.get("marker_offset", [0, 0, 0])) +
                    np.array(hw.get("base_offset", [0, 0, 0])))

@@ -16,10 +16,11 @@ tensions whose moment bends the straight rod to its curvature.
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, fields, replace
+from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
+from .control import per_rod
 from .robot import InputError, Robot
 from .statics import StaticSolution, solve_static
 from .types import StaticOptions
@@ -53,17 +54,6 @@ class IKResult:
     def to_npz(self, path) -> None:
         out = {k: v for k, v in asdict(self).items() if isinstance(v, np.ndarray)}
         np.savez_compressed(path, reason=np.array(self.reason), **out)
-
-
-def _rows(name: str, value, B: int, tail: tuple) -> np.ndarray:
-    arr = np.array(value, dtype=np.float64)
-    if arr.shape == tail:
-        arr = np.broadcast_to(arr, (B,) + tail)
-    if arr.ndim != len(tail) + 1 or arr.shape[1:] != tail:
-        raise InputError(f"{name}: expected shape {tail} or (B,) + {tail}, got {np.shape(value)}")
-    if not np.isfinite(arr).all():
-        raise InputError(f"{name}: non-finite value in {np.asarray(value).tolist()!r}")
-    return arr
 
 
 def box_least_squares(A: np.ndarray, b: np.ndarray, lo: np.ndarray, hi: np.ndarray, damping) -> np.ndarray:
@@ -147,18 +137,6 @@ def constant_curvature_seed(robot: Robot, target: np.ndarray, lo: np.ndarray, hi
     return np.where(disp, x0, box_least_squares(A, need, np.where(disp, x0, lo), np.where(disp, x0, hi), 1e-9))
 
 
-def _take(a: StaticSolution, b: StaticSolution, rows: np.ndarray) -> StaticSolution:
-    """a with the rows of b where ``rows``."""
-    out = {}
-    for f in fields(a):
-        va, vb = getattr(a, f.name), getattr(b, f.name)
-        if isinstance(va, np.ndarray) and va.shape[:1] == rows.shape:
-            va = va.copy()
-            va[rows] = vb[rows]
-        out[f.name] = va
-    return replace(a, **out)
-
-
 def solve_ik(robot: Robot, target, *, target_rotation=None, tension_max=np.inf, displacement_range=None,
              tol: float = 1e-9, max_iter: int = 40, initial=None, options: StaticOptions | None = None,
              device: str | None = None, **overrides) -> IKResult:
@@ -178,10 +156,10 @@ def solve_ik(robot: Robot, target, *, target_rotation=None, tension_max=np.inf, 
         raise InputError(f"ik max_iter must be a positive integer, got {max_iter!r}")
     tgt = np.array(target, dtype=np.float64)
     B = max(robot.batch_size, tgt.shape[0] if tgt.ndim == 2 else 1)
-    tgt = _rows("target", target, B, (3,))
+    tgt = per_rod("target", target, B, (3,))
     Rt = None
     if target_rotation is not None:
-        Rt = _rows("target_rotation", target_rotation, B, (3, 3))
+        Rt = per_rod("target_rotation", target_rotation, B, (3, 3))
         bad = np.abs(np.einsum("bji,bjk->bik", Rt, Rt) - np.eye(3)).max(axis=(1, 2)) > 1e-6
         if bad.any() or (np.linalg.det(Rt) < 0).any():
             raise InputError(f"target_rotation[{int(np.flatnonzero(bad | (np.linalg.det(Rt) < 0))[0])}] is not a "
@@ -189,7 +167,7 @@ def solve_ik(robot: Robot, target, *, target_rotation=None, tension_max=np.inf, 
     disp = np.zeros(K, dtype=bool)
     disp[list(robot.displaced)] = True
     L = np.broadcast_to(robot.length, (B,))
-    tmax = _rows("tension_max", tension_max, B, (K,)) if np.ndim(tension_max) else np.full((B, K), float(tension_max))
+    tmax = per_rod("tension_max", tension_max, B, (K,), bound=True)
     if (tmax[:, ~disp] <= 0).any():
         raise InputError(f"tension_max must be positive, got {tmax[:, ~disp][tmax[:, ~disp] <= 0][0]!r}")
     dlo, dhi = (-L / 20, L / 20) if displacement_range is None else displacement_range
@@ -201,7 +179,7 @@ def solve_ik(robot: Robot, target, *, target_rotation=None, tension_max=np.inf, 
     opts = replace(options or StaticOptions(), **overrides)
     opts = replace(opts, sensitivities=True, tol=opts.tol if opts.tol is not None else 1e-3 * tol)
     cmd = constant_curvature_seed(robot, tgt, lo, hi) if initial is None else np.clip(
-        _rows("initial", initial, B, (K,)), lo, hi)
+        per_rod("initial", initial, B, (K,)), lo, hi)
 
     def solve(c, warm):
         kw = dict(tensions=np.where(disp, 0.0, c), displacements=np.where(disp, c, 0.0) if disp.any() else None)
@@ -246,7 +224,7 @@ def solve_ik(robot: Robot, target, *, target_rotation=None, tension_max=np.inf, 
         en, eon = error(new)
         better = ~done & new.converged & (np.linalg.norm(en, axis=1) < np.linalg.norm(e, axis=1))
         cmd = np.where(better[:, None], trial, cmd)
-        sol = _take(sol, new, better)
+        sol = sol.replaced(np.flatnonzero(better), new.rows(better))
         e, eo = np.where(better[:, None], en, e), np.where(better, eon, eo)
         lam = np.where(better, lam / 3.0, np.where(done, lam, lam * 10.0))
         stuck = ~done & ((lam > LAM_MAX) | (np.abs(step).max(axis=1) <= 1e-15 * (1 + np.abs(cmd).max(axis=1))))

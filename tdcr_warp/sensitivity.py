@@ -22,7 +22,7 @@ from .build import Tables, put_model
 from .kernels import layout
 from .robot import InputError, Robot
 
-__all__ = ["PROBE_REL", "linearise", "parameter_tables", "perturbed", "pose_rate"]
+__all__ = ["PROBE_REL", "linearise", "parameter_tables", "parameter_value", "perturbed", "pose_rate"]
 
 PROBE_REL = {"float64": 1.5e-8, "float32": 3e-4}  # forward-difference step, relative to max(1, |value / scale|)
 PARAM_REL = {"float64": 1e-5, "float32": 3e-3}  # central differences of a parameter (relative step)
@@ -92,16 +92,23 @@ def parse_parameter(name: str):
     return tendon, path[0], comp, table[path[0]]
 
 
-def perturbed(robot: Robot, name: str, rel: float, sign: float = 1.0) -> tuple[Robot, np.ndarray]:
-    """The robot with parameter ``name`` moved by sign h, h = rel max(|value|, scale), and h (B,)."""
-    tendon, fname, comp, scale = parse_parameter(name)
-    B = robot.batch_size
+def parameter_value(robot: Robot, name: str) -> tuple[np.ndarray, np.ndarray]:
+    """Parameter ``name``'s field as stored (its owner's array) and its value per rod (B,)."""
+    tendon, fname, comp, _ = parse_parameter(name)
     if tendon is not None and not 0 <= tendon < robot.n_tendons:
         raise InputError(f"parameter {name!r}: the robot has {robot.n_tendons} tendons")
     owner = robot if tendon is None else robot.tendons[tendon]
     value = np.array(getattr(owner, fname), dtype=np.float64)
     cur = value[..., comp] if comp is not None else value
-    cur = np.broadcast_to(cur, (B,)) if cur.ndim else np.full(B, float(cur))
+    return value, np.broadcast_to(cur, (robot.batch_size,)) if cur.ndim else np.full(robot.batch_size, float(cur))
+
+
+def perturbed(robot: Robot, name: str, rel: float, sign: float = 1.0) -> tuple[Robot, np.ndarray]:
+    """The robot with parameter ``name`` moved by sign h, h = rel max(|value|, scale), and h (B,)."""
+    tendon, fname, comp, scale = parse_parameter(name)
+    B = robot.batch_size
+    value, cur = parameter_value(robot, name)
+    owner = robot if tendon is None else robot.tendons[tendon]
     h = rel * np.maximum(np.abs(cur), _field_scale(robot, scale, B))
     new = np.broadcast_to(value, (B,) + value.shape[-1:] if comp is not None else (B,)).copy()
     if comp is not None:

@@ -14,7 +14,7 @@ import functools
 import threading
 import weakref
 from collections import OrderedDict
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, field, fields, replace
 
 import numpy as np
 import warp as wp
@@ -122,6 +122,25 @@ class StaticSolution:
     def tip_rotation(self) -> np.ndarray:
         return self.rotations[:, -1]
 
+    def _batched(self):
+        """The fields with a row per rod."""
+        B = len(self.converged)
+        return [f.name for f in fields(self) if isinstance(getattr(self, f.name), np.ndarray)
+                and getattr(self, f.name).ndim and len(getattr(self, f.name)) == B]
+
+    def rows(self, index) -> "StaticSolution":
+        """The rods ``index`` (indices or a mask) of this solution, e.g. a warm start for a sub-batch."""
+        return replace(self, **{k: getattr(self, k)[index] for k in self._batched()})
+
+    def replaced(self, index: np.ndarray, other: "StaticSolution") -> "StaticSolution":
+        """This solution with its rods ``index`` (indices) replaced by the rods of ``other``, in order."""
+        out = {}
+        for k in self._batched():
+            v = getattr(self, k).copy()
+            v[index] = getattr(other, k)
+            out[k] = v
+        return replace(self, **out)
+
     def failure_reasons(self) -> list[str]:
         """One string per rod: "converged" or why it failed."""
         return [describe_status(st) for st in self.status]
@@ -203,16 +222,18 @@ class StaticProblem:
     def reference_lengths(self) -> np.ndarray:
         """(B, K) the unstretched length of every tendon at the reference state (each tendon in
         tension control at its pretension, frictionless, under the robot's external loads),
-        solved once: a displacement q asks the motor to take in q of it."""
+        solved once, and for one rod where every rod has the same robot (the batch differs in its
+        commands only): a displacement q asks the motor to take in q of it."""
         if self._reference is None:
-            ref = StaticProblem(self.robot, self.B, self.opts, self.device, mode="reference")
-            pre = np.broadcast_to(self.robot.tendon_columns("pretension"), (self.B, self.robot.n_tendons))
+            n = self.robot.batch_size  # 1 (shared) or B
+            ref = StaticProblem(self.robot, n, self.opts, self.device, mode="reference")
+            pre = np.broadcast_to(self.robot.tendon_columns("pretension"), (n, self.robot.n_tendons))
             sol = ref.solve(np.array(pre), None)
             if not sol.converged.all():
                 bad = int(np.flatnonzero(~sol.converged)[0])
                 raise InputError(f"the reference state of displacement control (every tendon at its pretension) "
                                  f"did not converge for rod {bad}: {sol.failure_reasons()[bad]}")
-            self._reference = sol.tendon_free_length
+            self._reference = np.broadcast_to(sol.tendon_free_length, (self.B, self.robot.n_tendons)).copy()
         return self._reference
 
     def command(self, tau: np.ndarray, displacements: np.ndarray | None) -> tuple[np.ndarray, np.ndarray | None]:

@@ -28,7 +28,7 @@ import numpy as np
 from .chunk import parse_field
 from .robot import InputError
 from .scene import scene_from_dict
-from .sensitivity import parse_parameter
+from .sensitivity import parameter_value
 from .statics import solve_static
 from .sweep import SweepSpec
 
@@ -65,13 +65,7 @@ def _nominal(robot, tensions: np.ndarray, name: str, column: int | None) -> floa
         if not 0 <= column < robot.n_tendons or robot.tendons[column].control == "displacement":
             raise InputError(f"parameter {name!r}: no tendon {column} under tension control")
         return float(tensions[0, column])
-    tendon, fname, comp, _ = parse_parameter(name)
-    if tendon is not None and not 0 <= tendon < robot.n_tendons:
-        raise InputError(f"parameter {name!r}: the robot has {robot.n_tendons} tendons")
-    owner = robot if tendon is None else robot.tendons[tendon]
-    value = np.asarray(getattr(owner, fname), dtype=np.float64)
-    value = value[..., comp] if comp is not None else value
-    return float(np.ravel(value)[0])
+    return float(parameter_value(robot, name)[1][0])
 
 
 def linearised_spread(data: dict, device=None) -> dict:

@@ -231,7 +231,7 @@ def test_static_reports_stability_and_sensitivities(tmp_path):
 
 @pytest.mark.parametrize("edit, message", [
     ("[ik]\ntension_max = 8.0", "missing key 'targets' in [ik]"),
-    ("[ik]\ntargets = [[0.0, 0.1]]", "target: expected shape"),
+    ("[ik]\ntargets = [[0.0, 0.1]]", "target: expected a number, shape"),
     ("[ik]\ntargets = 'far'", "[ik].targets"),
     ("[ik]\ntargets = [[0.0, 0.0, 0.5]]\nspeed = 1", "speed"),
 ])

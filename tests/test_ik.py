@@ -84,7 +84,7 @@ def test_box_least_squares_is_the_bounded_optimum():
 
 def test_bad_input_gets_a_clear_message():
     rb = robot()
-    with pytest.raises(tw.InputError, match="target: expected shape"):
+    with pytest.raises(tw.InputError, match="target: expected a number, shape"):
         solve_ik(rb, [0.0, 0.1])
     with pytest.raises(tw.InputError, match="non-finite"):
         solve_ik(rb, [0.0, np.nan, 0.4])
