@@ -52,7 +52,7 @@ def timed(data: dict, backend: str) -> float:
         t0 = time.perf_counter()
         res = run_sweep(data, SweepJob("workspace", device="cpu"), tmp, backend=backend, progress=False)
         wall = time.perf_counter() - t0
-    assert res["ok"].all(), "a rod failed: the benchmark scene must converge everywhere"
+    assert res.failed == 0, "a rod failed: the benchmark scene must converge everywhere"
     return wall
 
 

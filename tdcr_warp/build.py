@@ -252,11 +252,14 @@ class StraightRod:
             t = dr + e3
             norm = np.linalg.norm(t, axis=-1, keepdims=True)
             arm = tl[..., None] * e3 + r
-            # |r'(s) + e3| by Simpson's rule over [0, l] (exact where |r'| is constant: straight, helical, linear)
-            frac = np.linspace(0.0, 1.0, 65)
-            rates = np.stack([np.linalg.norm(robot.tendon_routing(tl * f)[1] + e3, axis=-1) for f in frac])
-            wts = np.r_[1.0, np.tile([4.0, 2.0], 31), 4.0, 1.0] / (3.0 * 64)
-            path = tl * np.tensordot(wts, rates, axes=1)
+            # |r'(s) + e3|: constant along straight, helical and linear routes; by Simpson's rule
+            # over [0, l] where a route runs through points
+            path = tl * np.linalg.norm(t, axis=-1)
+            if any(td.routing == "points" for td in robot.tendons):
+                frac = np.linspace(0.0, 1.0, 65)
+                rates = np.stack([np.linalg.norm(robot.tendon_routing(tl * f)[1] + e3, axis=-1) for f in frac])
+                wts = np.r_[1.0, np.tile([4.0, 2.0], 31), 4.0, 1.0] / (3.0 * 64)
+                path = tl * np.tensordot(wts, rates, axes=1)
         points = None
         if robot.point_forces:
             ps, pf = robot.pack_point_forces()

@@ -46,7 +46,7 @@ def apply_rows(data: dict, rows: dict[str, np.ndarray]) -> dict:
         if rows_k is not None:
             if not (isinstance(rows_k, list) and len(rows_k) == 1):
                 raise InputError(f"a sweep needs a single-rod scene: [actuation].{key} with one row")
-            out["actuation"][key] = [copy.deepcopy(rows_k[0]) for _ in range(b)]
+            out["actuation"][key] = _copies(rows_k[0], b)
             done.add(("actuation", key))
     for name, values in rows.items():
         path = parse_field(name)
@@ -73,17 +73,26 @@ def apply_rows(data: dict, rows: dict[str, np.ndarray]) -> dict:
             base = parent[leaf]
             if isinstance(base, list) and base and isinstance(base[0], list):
                 raise InputError(f"sweep field {name!r}: the base scene must be single-rod")
-            parent[leaf] = [copy.deepcopy(base) for _ in range(b)]
+            parent[leaf] = _copies(base, b)
             done.add(leaf_path)
         cur = parent[leaf]
-        for r in range(b):
+        for r, v in enumerate(np.asarray(values, dtype=np.float64).tolist()):
             if comp is None:  # a scalar, or every component of a vector
-                cur[r] = [float(values[r])] * len(cur[r]) if isinstance(cur[r], list) else float(values[r])
+                cur[r] = [v] * len(cur[r]) if isinstance(cur[r], list) else v
             else:
                 if not isinstance(cur[r], list) or comp >= len(cur[r]):
                     raise InputError(f"sweep field {name!r}: index {comp} out of range")
-                cur[r][comp] = float(values[r])
+                cur[r][comp] = v
     return out
+
+
+def _copies(base, b: int) -> list:
+    """b independent copies of a scene value (numbers are immutable: flat lists copy shallow)."""
+    if not isinstance(base, list):
+        return [base] * b
+    if all(not isinstance(x, (list, dict)) for x in base):
+        return [list(base) for _ in range(b)]
+    return [copy.deepcopy(base) for _ in range(b)]
 
 
 def solve_chunk(job, data: dict, rows: dict, threads: int | None = None) -> dict:

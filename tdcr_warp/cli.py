@@ -3,7 +3,8 @@
 ``tdcr-warp fit|predict SCENE.toml DATA.csv``.
 
 Exit status: 0 every rod converged; 1 some rods failed (outputs written, reasons recorded);
-2 bad input (the message names the field and the value, no traceback).
+2 bad input (the message names the field and the value, no traceback); 130 interrupted (Ctrl-C:
+one line on stderr, and no completion file: results.json, metrics.json, ik.json, fit.json).
 """
 
 from __future__ import annotations
@@ -11,8 +12,10 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import signal
 import sys
 import tempfile
+import threading
 import time
 from dataclasses import asdict, replace
 from pathlib import Path
@@ -21,6 +24,7 @@ import numpy as np
 
 from .kernels.rod import MODELS
 from .kernels.shooting import INTEGRATORS
+from .progress import Progress
 from .robot import InputError
 
 
@@ -44,13 +48,17 @@ def _write_npz(path: Path, save) -> None:
     _write_atomic(path, write)
 
 
-def _out_dir(args, default: Path) -> Path:
-    """The output directory (created); an unusable one is an InputError naming --out."""
+def _out_dir(args, default: Path, *complete: str) -> Path:
+    """The output directory (created), without the files ``complete`` of an earlier run (the
+    command writes them last: their presence means a run is complete, so an interrupted run
+    leaves none beside its partial outputs); an unusable one is an InputError naming --out."""
     out = Path(args.out) if args.out else default
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as e:
         raise InputError(f"--out {str(out)!r}: cannot create the output directory: {e.strerror or e}") from None
+    for name in complete:
+        (out / name).unlink(missing_ok=True)
     return out
 
 
@@ -105,9 +113,10 @@ def _load_kernels(scene, args, dynamic: bool = False) -> float:
 def cmd_static(args) -> int:
     from .scene import load_scene
     from .statics import solve_static
+    from .types import failure_reasons
 
     scene = _apply_overrides(load_scene(args.scene), args)
-    out = _out_dir(args, Path("out") / Path(args.scene).stem)
+    out = _out_dir(args, Path("out") / Path(args.scene).stem, "results.json")
     load_s = _load_kernels(scene, args)
     t0 = time.perf_counter()
     sol = solve_static(scene.robot, scene.tensions, options=scene.options, device=args.device,
@@ -137,7 +146,7 @@ def cmd_static(args) -> int:
     print(f"wrote {out}/results.json, shapes.npz{'' if args.no_figures else ', shapes.png'}")
     failed = int((~sol.converged).sum())
     if failed:
-        why = ", ".join(f"{n} x {reason}" for reason, n in _failure_counts(sol.status, sol.converged).items())
+        why = ", ".join(f"{n} x {reason}" for reason, n in failure_reasons(sol.status, sol.converged).items())
         print(f"tdcr-warp: {failed} of {B} rods did not converge: {why} (per rod in results.json)",
               file=sys.stderr)
         return 1
@@ -180,10 +189,10 @@ def cmd_simulate(args) -> int:
     spec = scene.dynamics
     if spec is None:
         raise InputError(f"{args.scene}: simulate needs a [dynamics] table (dt, steps, ...)")
-    steps = args.steps or spec.steps
+    steps = spec.steps if args.steps is None else args.steps
     if steps > spec.steps:
         raise InputError(f"--steps {steps} exceeds the scene's [dynamics].steps = {spec.steps}")
-    out = _out_dir(args, Path("out") / Path(args.scene).stem)
+    out = _out_dir(args, Path("out") / Path(args.scene).stem, "results.json")
     load_s = _load_kernels(scene, args, dynamic=True)
     t0 = time.perf_counter()
     sim = Simulator(scene.robot, scene.tensions, dt=spec.dt, alpha=spec.alpha, options=scene.options,
@@ -229,8 +238,8 @@ def cmd_control(args) -> int:
     spec, ctl = scene.dynamics, scene.control
     if spec is None or ctl is None:
         raise InputError(f"{args.scene}: control needs [dynamics] and [control] tables")
-    steps = args.steps or spec.steps
-    out = _out_dir(args, Path("out") / Path(args.scene).stem)
+    steps = spec.steps if args.steps is None else args.steps
+    out = _out_dir(args, Path("out") / Path(args.scene).stem, "metrics.json")
     t0 = time.perf_counter()
     if "target_tensions" in ctl:
         target = static_target(scene.robot, ctl["target_tensions"], options=scene.options, device=args.device)
@@ -279,7 +288,7 @@ def cmd_ik(args) -> int:
     ik = scene.ik
     if ik is None:
         raise InputError(f"{args.scene}: ik needs an [ik] table (targets = [[x, y, z], ...] in m)")
-    out = _out_dir(args, Path("out") / Path(args.scene).stem)
+    out = _out_dir(args, Path("out") / Path(args.scene).stem, "ik.json")
     load_s = _load_kernels(replace(scene, options=replace(scene.options, sensitivities=True)), args)
     t0 = time.perf_counter()
     kw = {k: ik[k] for k in ("tension_max", "displacement_range", "tol", "max_iter") if k in ik}
@@ -341,7 +350,7 @@ def cmd_predict(args) -> int:
     if scene.hardware is None:
         raise InputError(f"{args.scene}: predict needs a [hardware] table (servo_columns, marker_offset, base_offset)")
     meas = read_measurements(args.data, scene.hardware["servo_columns"])
-    out = _out_dir(args, Path("out") / Path(args.scene).stem)
+    out = _out_dir(args, Path("out") / Path(args.scene).stem, "metrics.json")
     load_s = _load_kernels(scene, args)
     pred = predict(scene, meas, device=args.device)
     m = metrics(pred["error_mm"], pred["converged"], float(np.max(scene.robot.length)))
@@ -360,24 +369,18 @@ def cmd_predict(args) -> int:
 
 def cmd_fit(args) -> int:
     """Calibrate a [hardware] scene on measured rows (tdcr_warp.hardware.fit); writes fitted.toml."""
-    import tomllib
-
     import tomli_w
 
     from .hardware import fit, read_measurements
-    from .scene import scene_from_dict
+    from .scene import load_scene
 
-    try:
-        data = tomllib.loads(Path(args.scene).read_text())
-    except (OSError, tomllib.TOMLDecodeError) as e:
-        raise InputError(f"{args.scene}: {e}") from None
-    scene = scene_from_dict(data)
+    scene = load_scene(args.scene)
     if scene.hardware is None:
         raise InputError(f"{args.scene}: fit needs a [hardware] table (servo_columns, marker_offset, base_offset)")
     meas = read_measurements(args.data, scene.hardware["servo_columns"])
-    out = _out_dir(args, Path("out") / (Path(args.scene).stem + "_fit"))
+    out = _out_dir(args, Path("out") / (Path(args.scene).stem + "_fit"), "fit.json", "fitted.toml")
     print(f"fitting {Path(args.scene).name} on {len(meas)} rows ...", flush=True)
-    res = fit(data, meas, detail=args.detail, device=args.device, max_iter=args.max_iter,
+    res = fit(scene.source, meas, detail=args.detail, device=args.device, max_iter=args.max_iter,
               progress=None if args.quiet else lambda h: print(f"  iteration {h['iteration']}: RMSE {h['rmse_mm']:.3f} mm"
                                                                f"{'' if h['accepted'] else ' (no step lowered it)'}",
                                                                flush=True))
@@ -397,18 +400,9 @@ def cmd_fit(args) -> int:
     return 0
 
 
-def _failure_counts(status: np.ndarray, ok: np.ndarray) -> dict[str, int]:
-    from .types import describe_status
-    counts: dict[str, int] = {}
-    for st in status[~ok]:
-        key = describe_status(st)
-        counts[key] = counts.get(key, 0) + 1
-    return counts
-
-
 def cmd_sweep(args) -> int:
     """montecarlo, workspace and gain-grid: a [sweep] over the scene, run in chunks."""
-    from .jobs import SweepJob, summarize_gain_grid, summarize_montecarlo, summarize_workspace
+    from .jobs import SweepJob, failure_counts, summarize_gain_grid, summarize_montecarlo, summarize_workspace
     from .scene import load_scene
     from .statics import solve_static
     from .sweep import SweepSpec, peak_memory_mb, run_sweep
@@ -431,41 +425,42 @@ def cmd_sweep(args) -> int:
     job = SweepJob(job_name, device=dev, nominal=data if job_name == "montecarlo" else None, shapes=args.shapes)
     out = Path(args.out or Path("out") / f"{Path(args.scene).stem}_{job_name}")
     try:
-        res = run_sweep(data, job, out, chunk=args.chunk, resume=args.resume, progress=not args.quiet,
-                        max_chunks=args.max_chunks, job_name=job_name, backend=args.backend, address=args.address,
-                        workers=args.workers, gpus_per_task=gpus, meta={"shapes": args.shapes})
+        run = run_sweep(data, job, out, chunk=args.chunk, resume=args.resume, overwrite=args.overwrite,
+                        progress=not args.quiet, max_chunks=args.max_chunks, job_name=job_name, backend=args.backend,
+                        address=args.address, workers=args.workers, gpus_per_task=gpus, meta={"shapes": args.shapes})
+        if run is None:
+            print(f"stopped after {args.max_chunks} new chunk(s); rerun with --resume to finish ({out})")
+            return 1
+        if not args.quiet:
+            print("summarising the chunks ...", flush=True)
+        if job_name == "montecarlo":
+            nominal = solve_static(base.robot, base.tensions, options=base.options, device=dev).tip_position[0]
+            summary = summarize_montecarlo(run, nominal, out)
+            summary["linearised"] = _linearised(data, dev, summary)
+        elif job_name == "workspace":
+            summary = summarize_workspace(run, base.robot, out)
+        else:
+            summary = summarize_gain_grid(run, [name for name, _ in SweepSpec(data).grid], out)
+        if run.failed:
+            summary["failure_reasons"] = failure_counts(run)
+        rate = run.computed_rods / run.wall_s if run.computed_rods and run.wall_s > 0 else None
+        summary.update(scene=str(args.scene), wall_time_s=run.wall_s, computed_rods=run.computed_rods, rods_per_s=rate,
+                       chunk=run.store.chunk, peak_memory_mb=peak_memory_mb(),
+                       settings=_settings(base, args, dev or "default"))
+        _write_json(out / "summary.json", summary)  # last: its presence means the sweep is complete
     except KeyboardInterrupt:
-        print(f"tdcr-warp: interrupted; the finished chunks are in {out}/chunks: rerun with --resume to finish",
+        print(f"tdcr-warp: interrupted; the finished chunks are kept in {out}: rerun with --resume to finish",
               file=sys.stderr)
         return 130
-    if res is None:
-        print(f"stopped after {args.max_chunks} new chunk(s); rerun with --resume to finish ({out})")
-        return 1
-    wall = res.pop("_wall_s")
-    ok = res["ok"].astype(bool)
-    rods = len(ok)
-    if job_name == "montecarlo":
-        nominal = solve_static(base.robot, base.tensions, options=base.options, device=dev).tip_position[0]
-        summary = summarize_montecarlo(res, nominal, out)
-        summary["linearised"] = _linearised(data, dev, summary)
-    elif job_name == "workspace":
-        summary = summarize_workspace(res, base.robot, out)
-    else:
-        fields = [name for name, _ in SweepSpec(data).grid]
-        summary = summarize_gain_grid(res, fields, out)
-    if "status" in res:
-        summary["failure_reasons"] = _failure_counts(res["status"], ok)
-    summary.update(scene=str(args.scene), wall_time_s=wall, rods_per_s=rods / wall if wall > 0 else None,
-                   chunk=args.chunk or SweepSpec(data).chunk, peak_memory_mb=peak_memory_mb(),
-                   settings=_settings(base, args, dev or "default"))
-    _write_json(out / "summary.json", summary)
-    print(f"{job_name}: {rods} rods in {wall:.1f} s ({rods / max(wall, 1e-9):,.0f} rods/s), "
-          f"{int((~ok).sum())} failed, peak memory {peak_memory_mb():.0f} MB")
+    done = (f"{run.computed_rods:,} computed in {run.wall_s:.1f} s ({rate:,.0f} rods/s)" if rate else
+            "every chunk was already done: nothing computed")
+    print(f"{job_name}: {run.rods:,} rods, {done}, {run.failed} failed, peak memory {peak_memory_mb():.0f} MB")
     if job_name == "gain-grid":
         best = summary["best"]
         print(f"best gains {best['gains']}: settling {best['settling_time']:.3f} s, final error "
               f"{best['final_error'] * 1e3:.3f} mm, chatter {best['chatter']:.2e} N")
-    print(f"wrote {out}/summary.json, results.npz, chunks/, figures")
+    print(f"wrote {out}/summary.json, results/ (Parquet){', arrays.zarr' if (out / 'arrays.zarr').exists() else ''}, "
+          "figures")
     return 0
 
 
@@ -490,6 +485,17 @@ def _linearised(data: dict, device, summary: dict) -> dict:
                     "scatter grows (README, Sensitivities)"}
 
 
+def _positive_int(text: str) -> int:
+    """The argparse type of the counts (--steps, --nodes, --max-iter): an integer >= 1."""
+    try:
+        n = int(text)
+    except ValueError:
+        n = 0
+    if n < 1:
+        raise argparse.ArgumentTypeError(f"must be a positive integer, got {text!r}")
+    return n
+
+
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="tdcr-warp", description="Batched tendon-driven continuum robots on Warp.")
     sub = ap.add_subparsers(dest="command", required=True)
@@ -507,18 +513,19 @@ def build_parser() -> argparse.ArgumentParser:
         if name in ("predict", "fit"):
             p.add_argument("data", nargs="+", help="keypoint CSV file(s) (tdcr_warp.hardware)")
         if name == "fit":
-            p.add_argument("--max-iter", type=int, default=30, help="Levenberg-Marquardt iterations (default 30)")
+            p.add_argument("--max-iter", type=_positive_int, default=30,
+                           help="Levenberg-Marquardt iterations (default 30)")
             p.add_argument("--detail", choices=["segment", "tendon"], default="tendon",
                            help="a rotation per tendon and a compliance per segment (default), or one per segment "
                                 "and one compliance")
         p.add_argument("--out", help="output directory (default: out/<scene name>)")
         p.add_argument("--device", default=None, help="cpu or cuda:0 (default: Warp's default device)")
-        p.add_argument("--nodes", type=int, help="override [solver].nodes")
+        p.add_argument("--nodes", type=_positive_int, help="override [solver].nodes")
         p.add_argument("--integrator", choices=list(INTEGRATORS), help="override [solver].integrator")
         p.add_argument("--model", choices=[*MODELS, "constant_curvature"], help="override [solver].model")
         p.add_argument("--precision", choices=["float64", "float32"], help="override [solver].precision")
         if name in ("simulate", "control"):
-            p.add_argument("--steps", type=int, help="run only the first STEPS steps")
+            p.add_argument("--steps", type=_positive_int, help="run only the first STEPS steps")
         if name in ("static", "simulate"):
             p.add_argument("--no-figures", action="store_true", help="skip the PNG figures (matplotlib costs ~0.7 s)")
         if name not in ("static",):
@@ -526,6 +533,8 @@ def build_parser() -> argparse.ArgumentParser:
         if name in ("montecarlo", "workspace", "gain-grid"):
             p.add_argument("--chunk", type=int, help="rods per chunk (default [sweep].chunk)")
             p.add_argument("--resume", action="store_true", help="continue an interrupted sweep in --out")
+            p.add_argument("--overwrite", action="store_true",
+                           help="replace the results of another sweep in --out (removed before this one starts)")
             p.add_argument("--max-chunks", type=int, help="stop after computing this many chunks")
             p.add_argument("--backend", choices=["local", "ray"], default="local",
                            help="local: in this process (default); ray: chunks as Ray tasks (pip install -e .[ray])")
@@ -537,12 +546,25 @@ def build_parser() -> argparse.ArgumentParser:
     return ap
 
 
+def _on_sigint(signum, frame) -> None:
+    """The first Ctrl-C: ignore any further one (the process is ending: its cleanups run to
+    their end), then interrupt as Python does."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    raise KeyboardInterrupt
+
+
 def main(argv=None) -> int:
-    """Run the command line; returns the exit status (0 ok, 1 some rods failed, 2 bad input).
-    A malformed command line (argparse) raises SystemExit(2) after printing the usage."""
+    """Run the command line; returns the exit status (0 ok, 1 some rods failed, 2 bad input,
+    130 interrupted). A malformed command line (argparse) raises SystemExit(2) after printing
+    the usage. Ctrl-C (SIGINT, KeyboardInterrupt) ends any command with one line on stderr and
+    no completion file; from the first SIGINT on, SIGINT is ignored (_on_sigint)."""
     from .cluster import SweepError
 
     args = build_parser().parse_args(argv)
+    own = (threading.current_thread() is threading.main_thread()
+           and signal.getsignal(signal.SIGINT) is signal.default_int_handler)
+    if own:  # (not where SIGINT is ignored, as in a background job, or handled by the caller)
+        signal.signal(signal.SIGINT, _on_sigint)
     try:
         if args.device is not None and getattr(args, "backend", "local") == "local":
             import warp as wp
@@ -554,6 +576,10 @@ def main(argv=None) -> int:
                 "workspace": cmd_sweep, "gain-grid": cmd_sweep, "ik": cmd_ik, "predict": cmd_predict,
                 "fit": cmd_fit}
         return cmds[args.command](args)
+    except KeyboardInterrupt:
+        Progress.end_line()
+        print("tdcr-warp: interrupted", file=sys.stderr)
+        return 130
     except InputError as e:
         print(f"tdcr-warp: error: {e}", file=sys.stderr)
         return 2
@@ -563,3 +589,6 @@ def main(argv=None) -> int:
     except SweepError as e:
         print(f"tdcr-warp: error: {e}", file=sys.stderr)
         return 1
+    finally:
+        if own and signal.getsignal(signal.SIGINT) is _on_sigint:  # no SIGINT came: as it was
+            signal.signal(signal.SIGINT, signal.default_int_handler)

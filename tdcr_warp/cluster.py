@@ -1,9 +1,11 @@
 """The Ray backend of chunked sweeps: each chunk is a Ray task, so one sweep spans the cores,
 GPUs and machines of a Ray cluster (``pip install -e ".[ray]"``).
 
-A task receives the base scene (put in Ray's object store once), its chunk's sample rows
-and the picklable job, builds the batch, solves it and returns the job's compact per-rod
-arrays; the driver (:func:`tdcr_warp.sweep.run_sweep`) writes each chunk as it arrives.
+A task receives the base scene (put in Ray's object store once), its chunk's sample rows,
+the picklable job and the sweep's :class:`~tdcr_warp.store.ChunkStore`; it builds the batch,
+solves it and writes its own chunk into the output folder (which the workers must see: one
+machine, or a shared file system), returning only its count of failed rods; the driver
+(:func:`tdcr_warp.sweep.run_sweep`) checks what arrives.
 Worker processes are reused from task to task, so a worker compiles or loads each Warp
 module once, not once per chunk; workers that share a disk also share the kernel cache
 (``WARP_CACHE_PATH`` of the driver, when set, is passed on to them). A task whose worker
@@ -33,18 +35,19 @@ def _import_ray():
     return ray
 
 
-def _task(job, data: dict, rows: dict) -> tuple[dict, dict]:
-    """Run in a Ray worker: one chunk on one solver thread (the cluster schedules the cores);
-    returns (results, worker info)."""
+def _task(job, data: dict, store, c: int, rows: dict) -> tuple[int, dict]:
+    """Run in a Ray worker: chunk c on one solver thread (the cluster schedules the cores),
+    written by the worker; returns (failed rods, worker info)."""
     t0 = time.perf_counter()
-    res = solve_chunk(job, data, rows, threads=1)
-    return res, {"pid": os.getpid(), "seconds": time.perf_counter() - t0}
+    failed = store.write(c, solve_chunk(job, data, rows, threads=1), rows)
+    return failed, {"pid": os.getpid(), "seconds": time.perf_counter() - t0}
 
 
-def ray_chunks(data: dict, job, todo: list[int], rows_of, *, address: str | None = None,
+def ray_chunks(data: dict, job, todo: list[int], store, samples, *, address: str | None = None,
                workers: int | None = None, gpus_per_task: float = 0.0, max_retries: int = 3,
                worker_info: list | None = None):
-    """Yield ``(chunk index, results)`` for the chunks in ``todo`` as Ray finishes them.
+    """Yield ``(chunk index, failed rods)`` for the chunks in ``todo`` as Ray's tasks write
+    them (``store``: the sweep's ChunkStore; ``samples(lo, hi)``: its sample rows).
 
     Joins the running Ray session, or the cluster at ``address``, or starts a local one of
     ``workers`` CPUs (default: all) that it shuts down at the end. One CPU (and
@@ -76,12 +79,12 @@ def ray_chunks(data: dict, job, todo: list[int], rows_of, *, address: str | None
         while queue or pending:
             while queue and len(pending) < 2 * cpus:
                 c = queue.pop(0)
-                pending[task.remote(job, data_ref, rows_of(c))] = c
+                pending[task.remote(job, data_ref, store, c, samples(*store.bounds(c)))] = c
             ready, _ = ray.wait(list(pending), num_returns=1)
             for ref in ready:
                 c = pending.pop(ref)
                 try:
-                    res, info = ray.get(ref)
+                    failed, info = ray.get(ref)
                 except ray.exceptions.RayTaskError as e:
                     if isinstance(e.cause, InputError):
                         raise InputError(str(e.cause)) from None
@@ -91,7 +94,8 @@ def ray_chunks(data: dict, job, todo: list[int], rows_of, *, address: str | None
                                      "the chunks done so far are saved: rerun with --resume") from None
                 if worker_info is not None:
                     worker_info.append({"chunk": c, **info})
-                yield c, res
+                store.read(c, check_only=True)  # what the worker wrote, before it counts
+                yield c, failed
     finally:
         # Tasks still in flight are not cancelled: ray.cancel racing with a finishing task aborts
         # the driver in Ray 2.60 ("Tried to complete task that was not pending"). Their results

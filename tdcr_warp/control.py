@@ -26,7 +26,7 @@ import numpy as np
 
 from .dynamics import Simulator
 from .progress import Progress
-from .robot import InputError, Robot, require_memory
+from .robot import InputError, Robot, real_array, require_memory
 from .statics import solve_static
 from .types import StaticOptions
 
@@ -41,7 +41,7 @@ def per_rod(name: str, value, B: int, tail: tuple[int, ...], bound: bool = False
     """``value`` as (B,) + tail: a number, shape ``tail`` (shared) or per rod; an InputError
     names ``name`` for any other shape or a non-finite entry (``bound``: an upper bound, +inf
     allowed)."""
-    arr = np.array(value, dtype=np.float64)
+    arr = real_array(value, name)
     if arr.shape == () and tail:
         arr = np.full(tail, float(arr))
     if arr.shape == tail:

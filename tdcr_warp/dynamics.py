@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 import warnings
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass
 
 import numpy as np
 import warp as wp
@@ -22,7 +22,7 @@ from .kernels import layout
 from .kernels.history import make_history_kernels
 from .parallel import parallel, split
 from .progress import Progress
-from .robot import InputError, Robot, check_command, check_tensions, require_memory
+from .robot import InputError, Robot, check_command, check_tensions, real_array, require_memory
 from .solver import Shooting
 from .statics import StaticSolution, available_lengths, reference_lengths, settle_slack, solve_static
 from .types import StaticOptions
@@ -108,7 +108,7 @@ class Simulator:
         if not (isinstance(alpha, (int, float)) and -0.5 < alpha <= 0.0):
             raise InputError(f"alpha must be in (-0.5, 0], got {alpha!r}")
         self.robot = robot
-        self.opts = replace(options or StaticOptions(), **overrides)
+        self.opts = (options or StaticOptions()).override(**overrides)
         self.dt, self.alpha = float(dt), float(alpha)
         self.coef = bdf_alpha_coefficients(self.dt, self.alpha)
         self._warn_single_shooting(robot, robot.section())
@@ -264,7 +264,7 @@ class Simulator:
         if callable(values):
             return values
         K = self.robot.n_tendons
-        sched = np.asarray(values, dtype=np.float64)
+        sched = real_array(values, name, copy=False)
         if sched.ndim == 2:
             sched = np.broadcast_to(sched[None], (self.B,) + sched.shape)
         if sched.shape != (self.B, steps, K):

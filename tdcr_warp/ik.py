@@ -21,7 +21,7 @@ from dataclasses import asdict, dataclass, replace
 import numpy as np
 
 from .control import per_rod
-from .robot import InputError, Robot
+from .robot import InputError, Robot, real_array
 from .statics import StaticSolution, solve_static
 from .types import StaticOptions
 
@@ -154,9 +154,9 @@ def solve_ik(robot: Robot, target, *, target_rotation=None, tension_max=np.inf, 
         raise InputError(f"ik tol must be a positive number [m], got {tol!r}")
     if not (isinstance(max_iter, int) and max_iter >= 1):
         raise InputError(f"ik max_iter must be a positive integer, got {max_iter!r}")
-    tgt = np.array(target, dtype=np.float64)
+    tgt = real_array(target, "target", copy=False)
     B = max(robot.batch_size, tgt.shape[0] if tgt.ndim == 2 else 1)
-    tgt = per_rod("target", target, B, (3,))
+    tgt = per_rod("target", tgt, B, (3,))
     Rt = None
     if target_rotation is not None:
         Rt = per_rod("target_rotation", target_rotation, B, (3, 3))
@@ -170,13 +170,16 @@ def solve_ik(robot: Robot, target, *, target_rotation=None, tension_max=np.inf, 
     tmax = per_rod("tension_max", tension_max, B, (K,), bound=True)
     if (tmax[:, ~disp] <= 0).any():
         raise InputError(f"tension_max must be positive, got {tmax[:, ~disp][tmax[:, ~disp] <= 0][0]!r}")
-    dlo, dhi = (-L / 20, L / 20) if displacement_range is None else displacement_range
-    dlo, dhi = (np.broadcast_to(np.asarray(v, dtype=np.float64), (B,)) for v in (dlo, dhi))
-    if not (np.isfinite(dlo).all() and np.isfinite(dhi).all() and (dlo < dhi).all()):
+    try:
+        dlo, dhi = (-L / 20, L / 20) if displacement_range is None else displacement_range
+    except (TypeError, ValueError):
+        raise InputError(f"displacement_range must be (lo, hi) [m], got {displacement_range!r}") from None
+    dlo, dhi = (per_rod("displacement_range", v, B, ()) for v in (dlo, dhi))
+    if not (dlo < dhi).all():
         raise InputError(f"displacement_range must be finite (lo, hi) with lo < hi [m], got {displacement_range!r}")
     lo = np.where(disp, dlo[:, None], 0.0)
     hi = np.where(disp, dhi[:, None], tmax)
-    opts = replace(options or StaticOptions(), **overrides)
+    opts = (options or StaticOptions()).override(**overrides)
     opts = replace(opts, sensitivities=True, tol=opts.tol if opts.tol is not None else 1e-3 * tol)
     cmd = constant_curvature_seed(robot, tgt, lo, hi) if initial is None else np.clip(
         per_rod("initial", initial, B, (K,)), lo, hi)

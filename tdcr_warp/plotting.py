@@ -124,21 +124,25 @@ def _ellipse(mean2: np.ndarray, cov2: np.ndarray, k: float) -> np.ndarray:
     return mean2[:, None] + V @ (k * np.sqrt(np.maximum(w, 0))[:, None] * np.stack([np.cos(t), np.sin(t)]))
 
 
-def plot_montecarlo(tips: np.ndarray, nominal: np.ndarray, err: np.ndarray, out_dir: Path) -> None:
-    """Histogram of the tip deviation from the nominal tip, and tip scatter (x-y, x-z) with
-    1, 2, 3 sigma confidence ellipses."""
+def plot_montecarlo(tips: np.ndarray, nominal: np.ndarray, err_hist, mean: np.ndarray, cov: np.ndarray | None,
+                    out_dir: Path) -> None:
+    """Histogram of the tip deviation from the nominal tip (``err_hist``: jobs.Histogram of
+    every rod), and tip scatter (x-y, x-z; ``tips``: an evenly spaced subset of the rods) with
+    1, 2, 3 sigma confidence ellipses of all rods' ``mean`` and ``cov``."""
     fig, axes = plt.subplots(1, 3, figsize=(14, 4.2))
-    axes[0].hist(err * 1e3, bins=60, color="C0")
+    used = np.flatnonzero(err_hist.counts)
+    lo, hi = used[0], used[-1] + 1
+    edges = err_hist.edges[lo:hi + 1]
+    axes[0].stairs(err_hist.counts[lo:hi], np.minimum(edges, max(err_hist.max, edges[0])) * 1e3, fill=True, color="C0")
     axes[0].set_xlabel("|tip - nominal tip| [mm]")
-    axes[0].set_ylabel("rods")
+    axes[0].set_ylabel("rods per bin (200 bins a decade)")
+    if edges[0] > 0:
+        axes[0].set_xscale("log")
     for ax, (i, j) in zip(axes[1:], ((0, 1), (0, 2))):
-        sub = tips[:: max(1, len(tips) // 20000)]
-        ax.scatter(sub[:, i] * 1e3, sub[:, j] * 1e3, s=2, alpha=0.3)
-        if len(tips) > 2:
-            m2 = tips[:, [i, j]].mean(0)
-            c2 = np.cov(tips[:, [i, j]].T)
+        ax.scatter(tips[:, i] * 1e3, tips[:, j] * 1e3, s=2, alpha=0.3)
+        if cov is not None:
             for k in (1, 2, 3):
-                e = _ellipse(m2, c2, k)
+                e = _ellipse(mean[[i, j]], cov[np.ix_([i, j], [i, j])], k)
                 ax.plot(e[0] * 1e3, e[1] * 1e3, "k-", lw=0.8)
         ax.plot(nominal[i] * 1e3, nominal[j] * 1e3, "r+", ms=12, label="nominal")
         ax.set_xlabel(f"{'xyz'[i]} [mm]")
@@ -177,33 +181,29 @@ def plot_workspace(tips: np.ndarray, total_tension: np.ndarray, cc: np.ndarray, 
     _save(fig, out_dir / "workspace.png")
 
 
-def plot_gain_grid(res: dict, fields: list, front: np.ndarray, out_dir: Path) -> None:
-    """Heatmaps over the first two gain fields (best over the others) of settling time, final
-    error and chatter, and the Pareto front settling time vs chatter."""
-    a, b = res[f"sample:{fields[0]}"], res[f"sample:{fields[min(1, len(fields) - 1)]}"]
-    ua, ub = np.unique(a), np.unique(b)
+def plot_gain_grid(cells: dict, fields: tuple, scatter: tuple, front: tuple, out_dir: Path) -> None:
+    """Heatmaps over the first two gain fields (``cells``: (a, b) -> the best settling time,
+    final error and chatter over the other fields) and settling time vs chatter (``scatter``:
+    a subset of the runs) with the Pareto ``front``."""
+    ua = np.unique([a for a, _ in cells])
+    ub = np.unique([b for _, b in cells])
     fig, axes = plt.subplots(1, 4, figsize=(18, 4.2))
-    for ax, key, label in zip(axes[:3], ("settling_time", "final_error", "chatter"),
-                              ("settling time [s]", "final error [m]", "chatter index [N]")):
+    for m, (ax, label) in enumerate(zip(axes[:3], ("settling time [s]", "final error [m]", "chatter index [N]"))):
         grid = np.full((len(ub), len(ua)), np.nan)
-        val = np.where(np.isfinite(res[key]), res[key], np.nan)
-        for i, x in enumerate(ua):
-            for j, y in enumerate(ub):
-                sel = (a == x) & (b == y)
-                if sel.any() and np.isfinite(val[sel]).any():
-                    grid[j, i] = np.nanmin(val[sel])
+        for (a, b), vals in cells.items():
+            grid[np.searchsorted(ub, b), np.searchsorted(ua, a)] = vals[m]
         im = ax.imshow(grid, origin="lower", aspect="auto", cmap="magma_r",
                        extent=(0, len(ua), 0, len(ub)))
         ax.set_xticks(np.arange(len(ua)) + 0.5, [f"{x:.3g}" for x in ua], rotation=90, fontsize=7)
         ax.set_yticks(np.arange(len(ub)) + 0.5, [f"{y:.3g}" for y in ub], fontsize=7)
         ax.set_xlabel(fields[0])
-        ax.set_ylabel(fields[min(1, len(fields) - 1)])
+        ax.set_ylabel(fields[1])
         ax.set_title(label)
         fig.colorbar(im, ax=ax)
-    st = np.where(np.isfinite(res["settling_time"]), res["settling_time"], np.nan)
-    axes[3].scatter(st, res["chatter"], s=4, alpha=0.4)
-    if len(front):
-        axes[3].plot(st[front], res["chatter"][front], "r.-", label="Pareto front")
+    st, ch = scatter
+    axes[3].scatter(np.where(np.isfinite(st), st, np.nan), ch, s=4, alpha=0.4)
+    if len(front[0]):
+        axes[3].plot(front[0], front[1], "r.-", label="Pareto front")
         axes[3].legend()
     axes[3].set_xlabel("settling time [s]")
     axes[3].set_ylabel("chatter index [N]")

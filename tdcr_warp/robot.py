@@ -9,13 +9,14 @@ rod and the value, so that no bad number reaches a kernel.
 from __future__ import annotations
 
 import math
+import numbers
 import os
 from dataclasses import dataclass, field
 
 import numpy as np
 
 __all__ = ["InputError", "PointForce", "Robot", "Tendon", "check_command", "check_displacements", "check_slip",
-           "check_tensions"]
+           "check_tensions", "real_array"]
 
 
 class InputError(ValueError):
@@ -34,12 +35,31 @@ def require_memory(nbytes: float, what: str) -> None:
                          f"{total / 2**30:.0f} GiB")
 
 
+_KINDS = {"b": "true/false", "c": "a complex number", "U": "text", "S": "text", "M": "a date", "m": "a time span"}
+
+
+def real_array(value, name: str, copy: bool = True) -> np.ndarray:
+    """``value`` as a float64 array (a new one unless ``copy`` is false), or an InputError naming
+    ``name`` for anything but real numbers (complex numbers, text, booleans, dates or other
+    objects; ragged nesting), rather than a silent cast (a complex number would lose its imaginary
+    part)."""
+    try:
+        arr = np.asarray(value)
+    except (TypeError, ValueError):
+        raise InputError(f"{name}: expected a number or a rectangular array of numbers, got {value!r}") from None
+    if arr.dtype.kind == "O":  # Python integers beyond int64 (fine), or None, dates, tables, ...
+        bad = [x for x in arr.flat if isinstance(x, (bool, np.bool_)) or not isinstance(x, numbers.Real)]
+        odd = repr(bad[0]) if bad else None
+    else:
+        odd = None if arr.dtype.kind in "iuf" else _KINDS.get(arr.dtype.kind, str(arr.dtype))
+    if odd is not None:
+        raise InputError(f"{name}: expected real numbers, got {odd} in {value!r}")
+    return arr.astype(np.float64, copy=copy)
+
+
 def _as_field(name: str, value, tail: tuple[int, ...]) -> np.ndarray:
     """Return ``value`` as a float64 array of shape (1 or B, *tail)."""
-    try:
-        arr = np.array(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise InputError(f"{name}: expected a number or an array of numbers, got {value!r}") from None
+    arr = real_array(value, name)
     if arr.shape == tail:
         arr = arr[None]
     if arr.ndim != len(tail) + 1 or arr.shape[1:] != tail or arr.shape[0] < 1:
@@ -156,11 +176,7 @@ class Tendon:
         else:
             _check(f"tendon helix_radius ({self.routing} routing)", self.helix_radius, self.helix_radius == 0, "0")
         if self.routing == "points":
-            pts = self.points
-            try:
-                pts = np.array(pts, dtype=np.float64)
-            except (TypeError, ValueError):
-                raise InputError(f"tendon points: expected a list of (s, x, y) [m], got {self.points!r}") from None
+            pts = real_array(self.points, "tendon points")
             if pts.ndim != 2 or pts.shape[1] != 3 or pts.shape[0] < 2:
                 raise InputError(f"tendon points: expected two or more (s, x, y) rows, got shape {pts.shape}")
             if not np.isfinite(pts).all():
@@ -409,10 +425,7 @@ def _stack_cols(cols: list[np.ndarray]) -> np.ndarray:
 
 def _tendon_rows(value, name: str, K: int) -> np.ndarray:
     """``value`` as a 2-D float64 array of K columns ((K,) is one row), or an InputError."""
-    try:
-        a = np.array(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise InputError(f"{name}: expected a B x K array of numbers, got {value!r}") from None
+    a = real_array(value, name)
     if a.ndim == 1 and a.shape[0] == K:
         a = a[None]
     if a.ndim != 2 or a.shape[1] != K:
@@ -468,6 +481,8 @@ def check_command(robot: Robot, tensions, displacements, B: int | None = None) -
     tension only on a tendon under tension control, displacements only on a robot with some
     under displacement control (check_tensions, check_displacements). B (None): the robot's
     batch, or the rows of a (B, K) command."""
+    tensions, displacements = (None if a is None else real_array(a, name, copy=False)
+                               for a, name in ((tensions, "tensions"), (displacements, "displacements")))
     if B is None:
         B = max([robot.batch_size] + [np.shape(a)[0] for a in (tensions, displacements)
                                       if a is not None and np.ndim(a) == 2])

@@ -50,6 +50,7 @@ IK_KEYS = {"targets", "target_rotations", "tension_max", "displacement_range", "
 HARDWARE_KEYS = {"servo_columns", "marker_offset", "base_offset"}
 TABLES = {"robot", "tendons", "loads", "actuation", "solver", "dynamics", "control", "sweep", "uncertainty", "ik",
           "hardware"}
+MAX_DEPTH = 16  # tables and lists nested deeper than any scene needs (a handful) are refused
 
 
 @dataclass(frozen=True)
@@ -90,7 +91,7 @@ class Scene:
 
 
 def load_scene(path) -> Scene:
-    """Read and validate a TOML scene; every problem is an :class:`InputError`."""
+    """Read and validate a TOML scene; every problem is an :class:`InputError` naming the file."""
     path = Path(path)
     try:
         text = path.read_text(encoding="utf-8")
@@ -103,7 +104,28 @@ def load_scene(path) -> Scene:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:
         raise InputError(f"{path}: invalid TOML: {e}") from None
-    return scene_from_dict(data)
+    except RecursionError:  # tomllib parses nested arrays and inline tables recursively
+        raise InputError(f"{path}: invalid TOML: arrays or inline tables nested too deeply to parse (a scene "
+                         f"takes at most {MAX_DEPTH} levels)") from None
+    try:
+        return scene_from_dict(data)
+    except InputError as e:
+        raise InputError(f"{path}: {e}") from None
+
+
+def _check_depth(data: dict) -> None:
+    """An InputError naming the key under which tables and lists nest deeper than MAX_DEPTH
+    (checked without recursion: deeper values would otherwise reach Python's recursion limit
+    in the checks below, or in NumPy)."""
+    todo = [(data, "", 0)]
+    while todo:
+        value, where, depth = todo.pop()
+        if depth > MAX_DEPTH:
+            raise InputError(f"{where}: nested more than {MAX_DEPTH} levels deep")
+        for key, v in value.items() if isinstance(value, dict) else enumerate(value):
+            if isinstance(v, (dict, list)):
+                name = f"{where}[{key}]" if isinstance(key, int) else f"{where}.{key}" if where else key
+                todo.append((v, name if depth < 3 else where, depth + 1))
 
 
 def _table(data: dict, name: str, allowed: set[str], required: bool = False) -> dict:
@@ -128,6 +150,8 @@ def _numbers(value, where: str):
     """Check that value is a number or a (nested) list of numbers; return it unchanged."""
     def ok(v):
         if isinstance(v, list):
+            if len(v) > 64 and all(type(x) is float for x in v):  # a sweep's per-rod column, at C speed
+                return True
             return len(v) > 0 and all(ok(x) for x in v)
         return isinstance(v, (int, float)) and not isinstance(v, bool)
     if not ok(value):
@@ -166,6 +190,7 @@ def scene_from_dict(data: dict) -> Scene:
     if not isinstance(data, dict):
         raise InputError(f"a scene must be a table, got {type(data).__name__}")
     _no_unknown(data, TABLES, "the scene")
+    _check_depth(data)
     rob = _table(data, "robot", ROBOT_KEYS, required=True)
     robot_kw = {k: _required(rob, k, "[robot]") for k in ("length", "youngs_modulus", "poisson_ratio",
                                                             "radius", "density")}
@@ -289,6 +314,8 @@ def scene_from_dict(data: dict) -> Scene:
         for key in ("target", "target_tensions", "gain_c", "gain_k", "epsilon", "phi", "tension_max"):
             if key in control:
                 _numbers(control[key], f"[control].{key}")
+        if "target_tensions" in control:
+            check_tensions(robot, control["target_tensions"], "[control].target_tensions")
         if "model_every" in control:
             _integer(control["model_every"], "[control].model_every")
     B = tensions.shape[0]

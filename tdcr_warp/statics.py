@@ -23,7 +23,7 @@ from .build import Tables
 from .homotopy import continuation_steps, load_continuation
 from .kernels import layout
 from .parallel import parallel, split
-from .robot import InputError, Robot, check_command, check_slip, require_memory
+from .robot import InputError, Robot, check_command, check_slip, real_array, require_memory
 from .sensitivity import linearise, parameter_tables
 from .solver import Shooting
 from .stability import jacobi_index, node_routing
@@ -593,7 +593,7 @@ def reference_lengths(robot: Robot, *, options: StaticOptions | None = None, dev
     """(B, K) the unstretched length of every tendon in the reference state of displacement
     control: each tendon in tension control at its pretension, frictionless, under the robot's
     external loads [m] (a displacement q leaves the tendon this minus q)."""
-    opts = replace(options or StaticOptions(), **overrides)
+    opts = (options or StaticOptions()).override(**overrides)
     problem, locked = _problem(robot, robot.batch_size, opts, wp.get_device(device))
     try:
         return problem.reference_lengths().copy()
@@ -622,7 +622,8 @@ def solve_static(robot: Robot, tensions=None, *, displacements=None, slip=None, 
     "tendons[0].offset[1]", "tip_force[0]" (tdcr_warp.sensitivity; under displacement control
     the motor's given length is held, not the displacement).
     """
-    opts = replace(options or StaticOptions(), **overrides)
+    opts = (options or StaticOptions()).override(**overrides)
+    slip = None if slip is None else real_array(slip, "slip", copy=False)
     tau, q = check_command(robot, tensions, displacements,
                            None if slip is None or np.ndim(slip) != 2 else max(robot.batch_size, np.shape(slip)[0]))
     B = tau.shape[0]

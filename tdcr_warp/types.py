@@ -7,14 +7,15 @@ kernel-factory keys. Nothing here touches Warp: the scene reader imports it.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, fields, replace
 
 from .kernels import layout
 from .kernels.rod import MODELS, RODS
 from .kernels.shooting import INTEGRATORS
 from .robot import InputError
 
-__all__ = ["DRIVERS", "PRECISIONS", "PRESETS", "StaticOptions", "describe_status", "status_names"]
+__all__ = ["DRIVERS", "PRECISIONS", "PRESETS", "StaticOptions", "describe_status", "failure_reasons",
+           "status_names"]
 
 PRECISIONS = ("float64", "float32")
 DRIVERS = ("fused", "probes")
@@ -30,6 +31,15 @@ def describe_status(status: int) -> str:
     """The status bits of one rod in words."""
     names = status_names(status)
     return ", ".join(names) if names else "not converged"
+
+
+def failure_reasons(status, ok, counts: dict[str, int] | None = None) -> dict[str, int]:
+    """The failed rods (``ok`` false) counted per reason in words, added to ``counts``."""
+    counts = {} if counts is None else counts
+    for st in status[~ok]:
+        key = describe_status(st)
+        counts[key] = counts.get(key, 0) + 1
+    return counts
 
 
 PRESETS = {
@@ -138,12 +148,26 @@ class StaticOptions:
         measured tip errors): "fast", "balanced" (the defaults at N = 20) or "accurate"."""
         if name not in PRESETS:
             raise InputError(f"solver preset must be one of {tuple(PRESETS)}, got {name!r}")
+        _known_options(overrides)
         return cls(**(PRESETS[name] | overrides))
+
+    def override(self, **changes) -> "StaticOptions":
+        """A copy with ``changes`` (fields, e.g. nodes=20): the ``**overrides`` of the solvers; an
+        unknown name is an InputError naming it and listing the fields."""
+        _known_options(changes)
+        return replace(self, **changes)
 
     @property
     def tolerance(self) -> float:
         if self.tol is not None:
             return self.tol
         return 1e-10 if self.precision == "float64" else 1e-6
+
+
+def _known_options(names) -> None:
+    known = [f.name for f in fields(StaticOptions)]
+    unknown = [n for n in names if n not in known]
+    if unknown:
+        raise InputError(f"unknown solver option {unknown[0]!r} (the StaticOptions fields: {', '.join(known)})")
 
 

@@ -165,12 +165,24 @@ def test_bad_flags_and_out_dir(tmp_path, capsys):
     with pytest.raises(SystemExit) as e:  # argparse's own usage error
         main(["static", str(scene), "--integrator", "rk5"])
     assert e.value.code == 2 and "invalid choice: 'rk5'" in capsys.readouterr().err
-    assert main(["static", str(scene), "--nodes", "0", "--out", str(tmp_path / "o")]) == 2
-    assert "solver nodes must be an integer in [1, 100000], got 0" in capsys.readouterr().err
+    assert main(["static", str(scene), "--nodes", "100001", "--out", str(tmp_path / "o")]) == 2
+    assert "solver nodes must be an integer in [1, 100000], got 100001" in capsys.readouterr().err
     blocker = write(tmp_path, "not a directory", "file")
     assert main(["static", str(scene), "--out", str(blocker / "o")]) == 2
     err = capsys.readouterr().err
     assert err.startswith("tdcr-warp: error: --out") and "Traceback" not in err, err
+
+
+@pytest.mark.parametrize("argv", [["simulate", "--steps", "0"], ["control", "--steps", "-3"],
+                                  ["static", "--nodes", "0"], ["fit", "data.csv", "--max-iter", "0"]])
+def test_counts_below_one_exit_2_naming_the_option(tmp_path, capsys, argv):
+    """Refused before anything runs (--steps 0 used to run the scene's steps: 0 read as unset)."""
+    command, *rest = argv
+    scene = write(tmp_path, BASE + "[dynamics]\ndt = 0.005\nsteps = 3\n[control]\ntarget = [0.0, 0.0, 0.5]\n")
+    with pytest.raises(SystemExit) as e:
+        main([command, str(scene), *rest, "--out", str(tmp_path / "o")])
+    assert e.value.code == 2
+    assert f"argument {rest[-2]}: must be a positive integer, got {rest[-1]!r}" in capsys.readouterr().err
 
 
 def test_missing_file_and_subprocess_exit_status(tmp_path, capsys):

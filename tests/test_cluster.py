@@ -14,7 +14,7 @@ import pytest
 
 from tdcr_warp.cli import main
 from tdcr_warp.jobs import SweepJob, static_job
-from tdcr_warp.sweep import run_sweep
+from tdcr_warp.sweep import open_sweep, run_sweep
 from scenes import GAIN_GRID_SWEEP, MC_SWEEP
 
 ray = pytest.importorskip("ray")
@@ -52,32 +52,32 @@ def cluster():
 @pytest.fixture(scope="module")
 def local(tmp_path_factory):
     """The in-process reference result of SWEEP."""
-    return run_sweep(tomllib.loads(SWEEP), SweepJob("workspace"), tmp_path_factory.mktemp("local"), progress=False)
+    return run_sweep(tomllib.loads(SWEEP), SweepJob("workspace"), tmp_path_factory.mktemp("local"),
+                     progress=False).load()
 
 
 def assert_same(a: dict, b: dict) -> None:
-    assert set(a) - {"_wall_s"} == set(b) - {"_wall_s"}
+    assert set(a) == set(b)
     for k in a:
-        if k != "_wall_s":
-            assert np.array_equal(a[k], b[k]), k
+        assert np.array_equal(a[k], b[k]), k
 
 
 def test_two_workers_give_the_in_process_result(cluster, local, tmp_path):
-    res = run_sweep(tomllib.loads(SWEEP), SweepJob("workspace"), tmp_path, backend="ray", progress=False)
+    res = run_sweep(tomllib.loads(SWEEP), SweepJob("workspace"), tmp_path, backend="ray", progress=False).load()
     assert res["ok"].all() and len(res["ok"]) == 23
     assert_same(local, res)
 
 
-def test_workers_are_reused_across_chunks(cluster):
+def test_workers_are_reused_across_chunks(cluster, tmp_path):
     """Kernels load once per worker process: 10 chunks run on at most the 2 workers' processes."""
     from tdcr_warp.cluster import ray_chunks
-    from tdcr_warp.sweep import SweepSpec, make_samples
+    from tdcr_warp.store import ChunkStore
+    from tdcr_warp.sweep import Samples, SweepSpec
 
     data = tomllib.loads(SWEEP)
-    rows = make_samples(SweepSpec(data))
     info = []
-    done = dict(ray_chunks(data, static_job, list(range(10)),
-                           lambda c: {k: v[2 * c:2 * c + 2] for k, v in rows.items()}, worker_info=info))
+    store = ChunkStore(tmp_path, "test", 20, 2)
+    done = dict(ray_chunks(data, static_job, list(range(10)), store, Samples(SweepSpec(data)), worker_info=info))
     assert sorted(done) == list(range(10)) and len(info) == 10
     assert len({i["pid"] for i in info}) <= 2
 
@@ -87,7 +87,7 @@ def test_a_killed_worker_is_retried_and_nothing_is_lost(cluster, local, tmp_path
     marker.touch()
     res = run_sweep(tomllib.loads(SWEEP), DieOnce(str(marker)), tmp_path / "o", backend="ray", progress=False)
     assert not marker.exists(), "no worker was killed"
-    assert_same(local, res)
+    assert_same(local, res.load())
 
 
 @pytest.mark.parametrize("first,second", [("local", "ray"), ("ray", "local")])
@@ -95,8 +95,8 @@ def test_resume_across_backends(cluster, local, tmp_path, first, second):
     data = tomllib.loads(SWEEP)
     job = SweepJob("workspace")
     assert run_sweep(data, job, tmp_path, backend=first, max_chunks=2, progress=False) is None
-    assert len(list((tmp_path / "chunks").glob("chunk_*.npz"))) == 2
-    assert_same(local, run_sweep(data, job, tmp_path, backend=second, resume=True, progress=False))
+    assert len(list((tmp_path / "results").glob("part-*.parquet"))) == 2
+    assert_same(local, run_sweep(data, job, tmp_path, backend=second, resume=True, progress=False).load())
 
 
 def test_interrupted_driver_resumes(cluster, local, tmp_path):
@@ -113,41 +113,39 @@ def test_interrupted_driver_resumes(cluster, local, tmp_path):
     proc = subprocess.Popen([sys.executable, "-c", code],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + 120
-    while not list((out / "chunks").glob("chunk_*.npz")) and proc.poll() is None and time.monotonic() < deadline:
+    while not list((out / "results").glob("part-*.parquet")) and proc.poll() is None and time.monotonic() < deadline:
         time.sleep(0.01)
     proc.send_signal(signal.SIGINT)
     _, err = proc.communicate(timeout=60)
-    n_done = len(list((out / "chunks").glob("chunk_*.npz")))
+    n_done = len(list((out / "results").glob("part-*.parquet")))
     assert proc.returncode == 130, (n_done, err)
     assert "rerun with --resume" in err
-    assert 1 <= n_done < 300 and not (out / "results.npz").exists()
+    assert 1 <= n_done < 300 and not (out / "summary.json").exists()
     assert main(["workspace", str(scene), "--out", str(out), "--quiet", "--resume"]) == 0
     full = tmp_path / "full"
     assert main(["workspace", str(scene), "--out", str(full), "--quiet"]) == 0
-    a, b = np.load(out / "results.npz"), np.load(full / "results.npz")
-    for k in a.files:
-        assert np.array_equal(a[k], b[k]), k
+    assert_same(open_sweep(out).load(), open_sweep(full).load())
 
 
 def run_both(command: str, text: str, tmp_path, local_args=()) -> tuple:
-    """results.npz of ``command`` on the scene text with --backend ray and in process."""
+    """The results of ``command`` on the scene text with --backend ray and in process."""
     scene = tmp_path / "s.toml"
     scene.write_text(text)
     assert main([command, str(scene), "--out", str(tmp_path / "r"), "--quiet", "--backend", "ray"]) == 0
     assert main([command, str(scene), "--out", str(tmp_path / "l"), "--quiet", *local_args]) == 0
-    return np.load(tmp_path / "r" / "results.npz"), np.load(tmp_path / "l" / "results.npz")
+    return open_sweep(tmp_path / "r").load(), open_sweep(tmp_path / "l").load()
 
 
 def test_cli_ray_backend_matches_local(cluster, tmp_path):
     a, b = run_both("montecarlo", SWEEP, tmp_path, ["--shapes"])
-    assert "positions" not in a.files and b["positions"].shape == (23, 17, 3)
-    for k in a.files:
+    assert "positions" not in a and b["positions"].shape == (23, 17, 3)
+    for k in a:
         assert np.array_equal(a[k], b[k]), k
 
 
 def test_gain_grid_on_ray_matches_local(cluster, tmp_path):
     """Closed-loop control jobs (dynamics + controller in the worker) give the in-process metrics."""
     a, b = run_both("gain-grid", GAIN_GRID_SWEEP, tmp_path)
-    assert set(a.files) == set(b.files) and "settling_time" in a.files
-    for k in a.files:
+    assert set(a) == set(b) and "settling_time" in a
+    for k in a:
         assert np.array_equal(a[k], b[k], equal_nan=True), k

@@ -13,6 +13,7 @@ from hypothesis import strategies as st
 
 import tdcr_warp as tw
 from tdcr_warp.cli import main
+from tdcr_warp.ik import solve_ik
 from tdcr_warp.kernels import layout
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -255,6 +256,65 @@ def test_campaign_findings_exit_2(tmp_path, capsys, command, edit, message):
     path.write_text(_to_toml(scene) + edit)
     assert main([command, str(path), "--out", str(tmp_path / "o")]) == 2
     assert message in capsys.readouterr().err
+
+
+CONTROL = "[dynamics]\ndt = 0.005\nsteps = 3\n[control]\n"
+
+
+@pytest.mark.parametrize("command,edit,message", [  # odd types and shapes that ended in a traceback
+    ("control", CONTROL + "target_tensions = [[1.0]]\ngain_c = [[1.0, 2.0], [1.0]]\n",
+     "gain_c: expected a number or a rectangular array of numbers"),
+    ("control", CONTROL + "target_tensions = [[1.0, 2.0]]\n", "[control].target_tensions: expected shape (B, 1)"),
+    ("ik", "[ik]\ntargets = [[0.01, 0.0, 0.49], [0.0]]\n", "target: expected a number or a rectangular array"),
+    ("ik", "[ik]\ntargets = [[0.01, 0.0, 0.49]]\ndisplacement_range = [0.001]\n",
+     "displacement_range must be (lo, hi) [m], got [0.001]"),
+], ids=["ragged gain_c", "target_tensions shape", "ragged targets", "displacement_range"])
+def test_odd_values_exit_2_naming_the_field(tmp_path, capsys, command, edit, message):
+    path = tmp_path / "odd.toml"
+    path.write_text(_to_toml(GOOD) + edit)
+    assert main([command, str(path), "--out", str(tmp_path / "o"), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert message in err and "Traceback" not in err, err
+
+
+@pytest.mark.parametrize("value", ["[" * 900 + "]" * 900, "{a = " * 900 + "1" + "}" * 900, "[" * 40 + "1.0" + "]" * 40],
+                         ids=["900 arrays", "900 inline tables", "40 arrays"])
+def test_deeply_nested_scene_exits_2_naming_the_file(tmp_path, capsys, value):
+    """Nesting beyond tomllib's recursion (a RecursionError traceback), or beyond what a scene takes."""
+    path = tmp_path / "deep.toml"
+    path.write_text(_to_toml(GOOD) + f"[loads]\ngravity = {value}\n")
+    assert main(["static", str(path), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"tdcr-warp: error: {path}: ") and "nested" in err and "Traceback" not in err, err
+
+
+ROD = tw.Robot(tendons=[tw.Tendon(offset=(0.01, 0.0)), tw.Tendon(offset=(0.0, 0.01))])
+PULLED = tw.Robot(tendons=[tw.Tendon(offset=(0.01, 0.0), control="displacement"), tw.Tendon(offset=(0.0, 0.01))])
+
+
+@pytest.mark.parametrize("call,message", [  # silently cast (a complex number lost its imaginary part), or a TypeError
+    (lambda: tw.solve_static(ROD, [[1.0 + 0.5j, 0.5]]), "tensions: expected real numbers, got a complex number"),
+    (lambda: tw.solve_static(ROD, ["1.0", 0.5]), "tensions: expected real numbers, got text"),
+    (lambda: tw.solve_static(ROD, np.array([1.0, None], dtype=object)), "tensions: expected real numbers, got None"),
+    (lambda: tw.solve_static(PULLED, None, displacements=[1e-3j, 0.0]),
+     "displacements: expected real numbers, got a complex number"),
+    (lambda: tw.solve_static(ROD, [1.0, 0.5], slip=[1j, 1.0]), "slip: expected real numbers, got a complex number"),
+    (lambda: tw.Robot(youngs_modulus=np.array([190e9 + 1e9j])),
+     "youngs_modulus: expected real numbers, got a complex number"),
+    (lambda: tw.Tendon(offset=("0.01", 0.0)), "tendon offset: expected real numbers, got text"),
+    (lambda: tw.Simulator(ROD, [1.0j, 0.0], dt=0.01), "tensions: expected real numbers, got a complex number"),
+    (lambda: solve_ik(ROD, [0.01 + 1e-3j, 0.0, 0.49]), "target: expected real numbers, got a complex number"),
+    (lambda: tw.solve_static(ROD, [1.0, 0.5], nodse=10), "unknown solver option 'nodse' (the StaticOptions fields: "
+                                                          "nodes, integrator"),
+    (lambda: tw.Simulator(ROD, [1.0, 0.5], dt=0.01, nodez=10), "unknown solver option 'nodez'"),
+    (lambda: tw.StaticOptions.preset("fast", nods=3), "unknown solver option 'nods'"),
+], ids=["complex tensions", "text tensions", "None tension", "complex displacements", "complex slip",
+        "complex robot field", "text tendon offset", "complex Simulator tensions", "complex ik target",
+        "unknown solve_static option", "unknown Simulator option", "unknown preset override"])
+def test_api_input_types_are_checked_naming_the_field(call, message):
+    with pytest.raises(tw.InputError) as info:
+        call()
+    assert message in str(info.value), str(info.value)
 
 
 def test_workspace_where_no_rod_converges_ends_cleanly(tmp_path):

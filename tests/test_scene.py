@@ -33,6 +33,13 @@ def _set(d: dict, path: str, value) -> None:
         d[key] = value
 
 
+def nested(depth: int, value=0.0):
+    """value inside ``depth`` lists."""
+    for _ in range(depth):
+        value = [value]
+    return value
+
+
 def scene(**edits) -> dict:
     """BASE with edits such as ``robot__length=-1``."""
     d = copy.deepcopy(BASE)
@@ -152,6 +159,9 @@ def test_helix_radius_key_and_optional_fields():
     (dict(solver__preset=3), "[solver].preset must be a string, got 3"),
     (dict(solver__nodse=20), "unknown key 'nodse' in [solver]"),
     (dict(extra={"a": 1}), "unknown key 'extra' in the scene"),
+    (dict(dynamics={"dt": 0.005, "steps": 3}, control={"target_tensions": [[1.0]]}),
+     "[control].target_tensions: expected shape (B, 2) for 2 tendons, got (1, 1)"),
+    (dict(robot__precurvature=nested(17)), "robot.precurvature[0]: nested more than 16 levels deep"),
 ])
 def test_bad_scenes_name_field_and_value(edits, message):
     with pytest.raises(tw.InputError) as info:
@@ -179,3 +189,18 @@ def test_file_errors(tmp_path):
     except tomllib.TOMLDecodeError as e:
         toml_message = str(e)
     assert str(bad) in str(info.value) and toml_message in str(info.value)
+
+
+def test_every_scene_error_names_the_file(tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[robot]\nlength = 1979-05-27\n")
+    with pytest.raises(tw.InputError) as info:
+        load_scene(bad)
+    assert str(info.value).startswith(f"{bad}: [robot].length: expected a number or a list of numbers, got "
+                                      "datetime.date(1979, 5, 27)"), str(info.value)
+
+
+def test_nesting_beyond_the_recursion_limit_is_an_input_error():
+    """A scene dict built in Python, nested deeper than any recursive check could follow."""
+    with pytest.raises(tw.InputError, match=r"robot\.length\[0\]: nested more than 16 levels deep"):
+        scene_from_dict(scene(robot__length=nested(5000)))

@@ -12,7 +12,7 @@ import tdcr_warp as tw
 from tdcr_warp.cli import main
 from tdcr_warp.jobs import constant_curvature_tip, convex_hull_2d, pareto_front, static_job
 from tdcr_warp.scene import scene_from_dict
-from tdcr_warp.sweep import run_sweep
+from tdcr_warp.sweep import open_sweep, run_sweep
 from scenes import GAIN_GRID_SWEEP
 from scenes import MC_SWEEP as MC
 from scenes import two_tendon_scene
@@ -33,7 +33,7 @@ chunk = 7
 
 def test_sweep_rows_equal_direct_solves(tmp_path):
     data = tomllib.loads(GRID)
-    res = run_sweep(data, static_job, tmp_path, progress=False)
+    res = run_sweep(data, static_job, tmp_path, progress=False).load()
     assert len(res["ok"]) == 20 and res["ok"].all()
     tau0 = res["sample:actuation.tensions[0]"]
     E = res["sample:robot.youngs_modulus"]
@@ -48,8 +48,8 @@ def test_sweep_rows_equal_direct_solves(tmp_path):
 
 def test_chunk_size_does_not_change_results(tmp_path):
     data = tomllib.loads(MC)
-    a = run_sweep(data, static_job, tmp_path / "a", chunk=5, progress=False)
-    b = run_sweep(data, static_job, tmp_path / "b", chunk=40, progress=False)
+    a = run_sweep(data, static_job, tmp_path / "a", chunk=5, progress=False).load()
+    b = run_sweep(data, static_job, tmp_path / "b", chunk=40, progress=False).load()
     assert np.array_equal(a["tip_position"], b["tip_position"])
     assert np.array_equal(a["sample:robot.youngs_modulus"], b["sample:robot.youngs_modulus"])
 
@@ -60,11 +60,11 @@ def test_resume_after_interruption_gives_the_same_output(tmp_path):
     full, part = tmp_path / "full", tmp_path / "part"
     assert main(["montecarlo", str(scene), "--out", str(full), "--quiet"]) == 0
     assert main(["montecarlo", str(scene), "--out", str(part), "--quiet", "--max-chunks", "1"]) == 1
-    assert len(list((part / "chunks").glob("chunk_*.npz"))) == 1 and not (part / "results.npz").exists()
+    assert len(list((part / "results").glob("part-*.parquet"))) == 1 and not (part / "summary.json").exists()
     assert main(["montecarlo", str(scene), "--out", str(part), "--quiet", "--resume"]) == 0
-    a, b = np.load(full / "results.npz"), np.load(part / "results.npz")
-    assert set(a.files) == set(b.files)
-    for k in a.files:
+    a, b = open_sweep(full).load(), open_sweep(part).load()
+    assert set(a) == set(b)
+    for k in a:
         assert np.array_equal(a[k], b[k]), k
     sa = json.loads((full / "summary.json").read_text())
     sb = json.loads((part / "summary.json").read_text())
@@ -104,7 +104,7 @@ chunk = 8
     scene = tmp_path / "ws.toml"
     scene.write_text(text)
     assert main(["workspace", str(scene), "--out", str(tmp_path / "o"), "--quiet"]) == 0
-    res = np.load(tmp_path / "o" / "results.npz")
+    res = open_sweep(tmp_path / "o").load()
     assert res["ok"].all()
     assert np.abs(res["tip_position"][:, 1]).max() < 1e-12, "tip left the tendon's x-z plane"
     assert (res["tip_position"][1:, 0] > 0).all()
@@ -199,7 +199,7 @@ def test_sweep_over_displacements_and_friction_reports_slack(tmp_path):
     scene = tmp_path / "d.toml"
     scene.write_text(DISPLACED)
     assert main(["workspace", str(scene), "--out", str(tmp_path / "o"), "--quiet"]) == 0
-    res = np.load(tmp_path / "o" / "results.npz")
+    res = open_sweep(tmp_path / "o").load()
     assert res["ok"].all() and res["slack"].shape == (18, 2)
     q = np.c_[res["sample:actuation.displacements[0]"], res["sample:actuation.displacements[1]"]]
     released = q < -0.002

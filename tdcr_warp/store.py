@@ -1,0 +1,274 @@
+"""Where a sweep's results live on disk, and the rules that keep them trustworthy.
+
+An output folder holds one sweep:
+
+    sweep.json              the manifest: fingerprint, job, rods, chunk size, state
+    results/part-NNNNN.parquet   the per-rod table of chunk NNNNN (a Parquet dataset)
+    arrays.zarr/            per-rod arrays of more than one axis (tip rotations, shapes,
+                            Jacobians): one Zarr array each, (rows, ...), chunked like the sweep
+                            (Zarr format 2 with xarray's dimension names, consolidated at the end)
+    summary.json, *.png     the job's summary, written last
+    .lock                   held (flock) by the one process writing the folder
+
+Every part carries in its Parquet metadata what identifies it: the sweep's fingerprint, the
+chunk index, its row range and row count, and a SHA-256 of its columns and of its Zarr rows.
+A part is read only through :meth:`ChunkStore.read`, which checks all of that, so a copied,
+truncated, stale or foreign chunk is never merged. Parts are written to a temporary file and
+renamed, after their Zarr rows: a part that exists is complete.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import fcntl
+import hashlib
+import json
+import os
+import shutil
+import socket
+import time
+from pathlib import Path
+
+import numpy as np
+
+from .robot import InputError
+
+__all__ = ["ChunkError", "ChunkStore", "SweepLock", "clear_outputs", "read_manifest", "write_manifest"]
+
+FORMAT = 1
+MANIFEST = "sweep.json"
+TABLE = "results"
+ARRAYS = "arrays.zarr"
+SUMMARY = "summary.json"
+FIGURES = ("montecarlo.png", "workspace.png", "gain_grid.png")
+LEGACY = ("manifest.json", "results.npz", "chunks")  # the npz layout of earlier versions
+DIMS = {"positions": ("node", "xyz"), "tip_rotation": ("i", "j"), "tip_jacobian": ("pose", "command"),
+        "tip_compliance": ("pose", "wrench")}
+
+
+class ChunkError(InputError):
+    """A chunk file that fails its checks (unreadable, foreign, incomplete or altered): bad
+    input on disk, so the command line exits with status 2 naming the file."""
+
+
+def _atomic_write_text(path: Path, text: str) -> None:
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    tmp.write_text(text)
+    os.replace(tmp, path)
+
+
+def read_manifest(out: Path) -> dict | None:
+    """The manifest of the sweep in ``out``, {"legacy": True} for an output folder of the
+    earlier npz layout, or None for a folder without a sweep."""
+    path = out / MANIFEST
+    if path.exists():
+        try:
+            return json.loads(path.read_text())
+        except (OSError, ValueError) as e:
+            raise InputError(f"{path}: unreadable sweep manifest ({e}); --overwrite replaces the sweep") from None
+    if any((out / name).exists() for name in LEGACY) or (out / TABLE).exists():
+        return {"legacy": True}
+    return None
+
+
+def write_manifest(out: Path, manifest: dict) -> None:
+    _atomic_write_text(out / MANIFEST, json.dumps(manifest, indent=1))
+
+
+def clear_outputs(out: Path, everything: bool) -> None:
+    """Remove the summary and figures (nothing may look complete while a sweep runs); with
+    ``everything`` also the manifest, the parts, the arrays and earlier layouts' files. Only
+    names this module writes are touched."""
+    names = [SUMMARY, *FIGURES] + ([MANIFEST, TABLE, ARRAYS, *LEGACY] if everything else [])
+    for name in names:
+        p = out / name
+        if p.is_dir():
+            shutil.rmtree(p)
+        elif p.exists():
+            p.unlink()
+
+
+class SweepLock:
+    """One writer per output folder: an exclusive ``flock`` on ``out/.lock``. The kernel drops it
+    when the process ends however it ends (kill -9 included), so a lock file left behind by a
+    dead process is stale by construction: the next sweep takes it over (``stale`` says whose
+    it was). A second live sweep is refused with a message naming the holder."""
+
+    def __init__(self, out: Path):
+        self.path = Path(out) / ".lock"
+        self.stale: dict | None = None
+        self._f = None
+
+    def __enter__(self) -> "SweepLock":
+        f = open(self.path, "a+")
+        try:
+            fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            f.seek(0)
+            owner = f.read().strip() or "unknown process"
+            f.close()
+            raise InputError(f"{self.path.parent} is being written by another sweep ({owner}); wait for it to end "
+                             "or choose another --out") from None
+        f.seek(0)
+        old = f.read().strip()
+        if old:
+            with contextlib.suppress(ValueError):
+                self.stale = json.loads(old)
+        f.seek(0)
+        f.truncate()
+        f.write(json.dumps({"pid": os.getpid(), "host": socket.gethostname(),
+                            "started": time.strftime("%Y-%m-%dT%H:%M:%S%z")}))
+        f.flush()
+        self._f = f
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self._f.seek(0)
+        self._f.truncate()
+        fcntl.flock(self._f, fcntl.LOCK_UN)
+        self._f.close()
+
+
+@contextlib.contextmanager
+def _file_lock(path: Path):
+    with open(path, "a") as f:
+        fcntl.flock(f, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(f, fcntl.LOCK_UN)
+
+
+def _digest(columns: dict[str, np.ndarray], arrays: dict[str, np.ndarray]) -> str:
+    h = hashlib.sha256()
+    for name in sorted(columns):
+        h.update(name.encode())
+        h.update(np.ascontiguousarray(columns[name]).tobytes())
+    for name in sorted(arrays):
+        h.update(name.encode())
+        h.update(np.ascontiguousarray(arrays[name]).tobytes())
+    return h.hexdigest()
+
+
+class ChunkStore:
+    """The parts of one sweep in ``out``: writes (from the driver or a Ray worker) and checked
+    reads. Picklable: a Ray task gets it and writes its own chunk."""
+
+    def __init__(self, out, fingerprint: str, rows: int, chunk: int):
+        self.out, self.fingerprint, self.rows, self.chunk = Path(out), fingerprint, rows, chunk
+        self.n_chunks = (rows + chunk - 1) // chunk
+
+    def bounds(self, c: int) -> tuple[int, int]:
+        return c * self.chunk, min(self.rows, (c + 1) * self.chunk)
+
+    def part(self, c: int) -> Path:
+        return self.out / TABLE / f"part-{c:05d}.parquet"
+
+    def exists(self, c: int) -> bool:
+        return self.part(c).exists()
+
+    def write(self, c: int, res: dict[str, np.ndarray], samples: dict[str, np.ndarray]) -> int:
+        """Write chunk c: ``res`` the job's per-rod arrays, ``samples`` its sample rows. Arrays
+        of one or two axes become columns (``key`` or ``key[i]``), the others Zarr rows.
+        Returns the number of rods that failed (``ok`` false)."""
+        import pyarrow as pa
+        import pyarrow.parquet as pq
+
+        lo, hi = self.bounds(c)
+        columns: dict[str, np.ndarray] = {"row": np.arange(lo, hi, dtype=np.int64)}
+        widths, arrays = {}, {}
+        for key, v in res.items():
+            v = np.asarray(v)
+            if v.shape[:1] != (hi - lo,):
+                raise ChunkError(f"chunk {c}: the job's {key!r} has {v.shape[:1]} rows, expected {hi - lo}")
+            if v.ndim == 1:
+                columns[key] = v
+            elif v.ndim == 2:
+                widths[key] = v.shape[1]
+                columns.update({f"{key}[{i}]": v[:, i] for i in range(v.shape[1])})
+            else:
+                arrays[key] = v
+        columns.update({f"sample:{k}": np.asarray(v, dtype=np.float64) for k, v in samples.items()})
+        if arrays:
+            self._write_arrays(lo, hi, arrays)
+        meta = {"format": FORMAT, "fingerprint": self.fingerprint, "chunk": c, "lo": lo, "hi": hi, "rows": hi - lo,
+                "widths": widths, "arrays": sorted(arrays), "sha256": _digest(columns, arrays)}
+        table = pa.table({k: np.ascontiguousarray(v) for k, v in columns.items()})
+        table = table.replace_schema_metadata({"tdcr_warp": json.dumps(meta)})
+        path = self.part(c)
+        path.parent.mkdir(exist_ok=True)
+        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+        pq.write_table(table, tmp)
+        os.replace(tmp, path)
+        return int((~np.asarray(res["ok"]).astype(bool)).sum()) if "ok" in res else 0
+
+    def _write_arrays(self, lo: int, hi: int, arrays: dict[str, np.ndarray]) -> None:
+        import zarr
+
+        root = self.out / ARRAYS
+        with _file_lock(self.out / ".arrays.lock"):  # Ray workers may create the arrays at once
+            group = zarr.open_group(root, mode="a", zarr_format=2)
+            targets = {}
+            for key, v in arrays.items():
+                if key in group:
+                    targets[key] = group[key]
+                else:
+                    dims = DIMS.get(key, tuple(f"{key}_{i}" for i in range(1, v.ndim)))
+                    targets[key] = group.create_array(key, shape=(self.rows,) + v.shape[1:], dtype=v.dtype,
+                                                      chunks=(self.chunk,) + v.shape[1:],
+                                                      attributes={"_ARRAY_DIMENSIONS": ["row", *dims]})
+        for key, v in arrays.items():
+            targets[key][lo:hi] = v
+
+    def finish(self) -> None:
+        """After the last chunk: consolidate the Zarr metadata (one read opens the arrays)."""
+        if (self.out / ARRAYS).exists():
+            import zarr
+            zarr.consolidate_metadata(self.out / ARRAYS, zarr_format=2)
+
+    def read(self, c: int, *, check_only: bool = False) -> dict[str, np.ndarray] | None:
+        """Chunk c's results (``row``, the job's keys with 2-axis columns regrouped, Zarr rows,
+        and the ``sample:`` columns), after every check; raises ChunkError naming the file and what is
+        wrong. ``check_only``: return None once the checks pass."""
+        import pyarrow.parquet as pq
+
+        path, (lo, hi) = self.part(c), self.bounds(c)
+        try:
+            table = pq.read_table(path)
+            meta = json.loads((table.schema.metadata or {})[b"tdcr_warp"])
+        except KeyError:
+            raise ChunkError(f"{path}: not a tdcr-warp chunk (no tdcr_warp metadata)") from None
+        except Exception as e:  # noqa: BLE001 (pyarrow raises many kinds on a damaged file)
+            raise ChunkError(f"{path}: unreadable ({type(e).__name__}: {e})") from None
+        expect = {"format": FORMAT, "fingerprint": self.fingerprint, "chunk": c, "lo": lo, "hi": hi, "rows": hi - lo}
+        for k, v in expect.items():
+            if meta.get(k) != v:
+                what = "from another sweep" if k == "fingerprint" else f"{k} {meta.get(k)!r}, expected {v!r}"
+                raise ChunkError(f"{path}: {what}")
+        if table.num_rows != hi - lo:
+            raise ChunkError(f"{path}: {table.num_rows} rows, expected {hi - lo}")
+        columns = {name: table.column(name).to_numpy() for name in table.column_names}
+        if not np.array_equal(columns.get("row"), np.arange(lo, hi)):
+            raise ChunkError(f"{path}: its rows are not {lo}..{hi - 1}")
+        arrays = {}
+        if meta["arrays"]:
+            import zarr
+            try:
+                group = zarr.open_group(self.out / ARRAYS, mode="r")
+                arrays = {k: np.asarray(group[k][lo:hi]) for k in meta["arrays"]}
+            except Exception as e:  # noqa: BLE001
+                raise ChunkError(f"{self.out / ARRAYS}: rows {lo}..{hi - 1} unreadable ({type(e).__name__}: {e})") \
+                    from None
+        if _digest(columns, arrays) != meta["sha256"]:
+            raise ChunkError(f"{path}: checksum mismatch (the file or its rows in {ARRAYS} were altered)")
+        if check_only:
+            return None
+        out = {}
+        for name, v in columns.items():
+            key = name.rsplit("[", 1)[0]
+            if key in meta["widths"] and not name.startswith("sample:"):
+                if key not in out:
+                    out[key] = np.stack([columns[f"{key}[{i}]"] for i in range(meta["widths"][key])], axis=1)
+            else:
+                out[name] = v
+        return out | arrays
