@@ -1,16 +1,18 @@
 """Predicting two real robots (opencr-mujoco's Franka TDCRs v4 and v6; data: their training files
-only, in ../shared/validation/ocm_ftdcr): calibrate on all training rows (the fitted scenes become
+only, v4_train.csv and v6_train.csv from that project's data/sysid folder, which this repository
+does not ship: --data DIR, or $TDCR_HARDWARE_DATA; without them the script says so and skips): calibrate on all training rows (the fitted scenes become
 examples/hardware/ftdcr_v4.toml and ftdcr_v6.toml), cross-validate on the pattern labels (two
 folds: the sorted labels alternate between them; fit on one, predict the other), and compare the
 model rungs on the fitted scenes (error and time per rung on all training rows). Writes
 results/hardware_validation.json.
 
-    python experiments/hardware_validation.py [--robots v4 v6] [--no-scenes] [--smoke] [--out FILE]
+    python experiments/hardware_validation.py [--data DIR] [--robots v4 v6] [--no-scenes] [--smoke] [--out FILE]
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 import tomllib
@@ -26,7 +28,7 @@ from tdcr_warp.hardware import fit, metrics, predict, read_measurements  # noqa:
 from tdcr_warp.robot import InputError  # noqa: E402
 from tdcr_warp.scene import scene_from_dict  # noqa: E402
 
-DATA = ROOT.parent / "shared" / "validation" / "ocm_ftdcr"
+DATA = Path(os.environ.get("TDCR_HARDWARE_DATA", ROOT.parent / "shared" / "validation" / "ocm_ftdcr"))
 RUNGS = {"coupled cosserat (fitted)": {}, "coupled kirchhoff": {"rod": "kirchhoff"},
          "point cosserat": {"model": "point"}, "coupled cosserat N = 8": {"nodes": 8},
          "coupled cosserat, friction mu = 0.1": "friction", "constant curvature": {"model": "constant_curvature"}}
@@ -37,11 +39,11 @@ def _summary(m: dict) -> dict:
                               "converged", "rows")}
 
 
-def one_robot(name: str, scenes: bool, smoke: bool) -> dict:
+def one_robot(name: str, scenes: bool, smoke: bool, data_dir: Path = DATA) -> dict:
     nominal = ROOT / "examples" / "hardware" / f"ftdcr_{name}_nominal.toml"
     data = tomllib.loads(nominal.read_text())
     cols = data["hardware"]["servo_columns"]
-    meas = read_measurements(DATA / f"{name}_train.csv", cols)
+    meas = read_measurements(data_dir / f"{name}_train.csv", cols)
     if smoke:
         meas = meas.subset(np.arange(0, len(meas), max(1, len(meas) // 40)))
     L = data["robot"]["length"]
@@ -109,18 +111,19 @@ def one_robot(name: str, scenes: bool, smoke: bool) -> dict:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--data", type=Path, default=DATA, help="folder of v4_train.csv, v6_train.csv")
     ap.add_argument("--robots", nargs="+", default=["v4", "v6"])
     ap.add_argument("--no-scenes", action="store_true", help="do not write examples/hardware/ftdcr_*.toml")
     ap.add_argument("--smoke", action="store_true", help="40 rows, 2 iterations (for the test suite)")
     ap.add_argument("--out", default=str(ROOT / "results" / "hardware_validation.json"))
     args = ap.parse_args(argv)
-    if not DATA.exists():
-        print(f"no data at {DATA}: nothing to do")
-        write_report(args.out, {"meta": metadata("cpu"), "skipped": f"no data at {DATA}"})
+    if not args.data.exists():
+        print(f"no data at {args.data}: nothing to do")
+        write_report(args.out, {"meta": metadata("cpu"), "skipped": f"no data at {args.data}"})
         return 0
     report = {"meta": metadata("cpu", command=" ".join(sys.argv))}
     for name in args.robots:
-        report[name] = one_robot(name, not args.no_scenes, args.smoke)
+        report[name] = one_robot(name, not args.no_scenes, args.smoke, args.data)
     write_report(args.out, report)
     return 0
 

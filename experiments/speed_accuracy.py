@@ -25,6 +25,7 @@ sys.path[:0] = [str(ROOT / "experiments")]
 
 import tdcr_warp as tw  # noqa: E402
 from _common import metadata, write_report  # noqa: E402
+from tdcr_warp.jobs import pareto_front  # noqa: E402
 
 BASE = dict(length=0.5, youngs_modulus=190e9, poisson_ratio=0.3, radius=1e-3, density=7800.0)
 
@@ -147,9 +148,13 @@ def plot(rows: list[dict], path: Path) -> None:
         pts = [r for r in rows if r["scene"] == name and r.get("applicable")]
         t = np.array([r.get("us_per_rod", r.get("us_per_rod_step")) for r in pts])
         e = np.array([max(r["tip_error_m"], 1e-16) for r in pts])
-        ax.loglog(t, e, "o", ms=4)
-        for ti, ei, r in zip(t, e, pts):
-            ax.annotate(r["setting"].replace("integrator=", "").replace("nodes=", "N="), (ti, ei), fontsize=6)
+        ax.loglog(t, e, "o", ms=4, color="C0", alpha=0.5, label="setting")
+        front = pareto_front(t, e)  # the settings no other beats in both time and error
+        ax.loglog(t[front], e[front], "r.-", lw=1, label="Pareto front")
+        for i in front:  # labelled on the front only, alternately above and below: no overlap
+            ax.annotate(pts[i]["setting"].replace("integrator=", "").replace("nodes=", "N="), (t[i], e[i]),
+                        xytext=(4, 6 if i % 2 else -10), textcoords="offset points", fontsize=6)
+        ax.legend(fontsize=7)
         ax.set_title(name)
         ax.set_xlabel("time per rod [us]" if "dynamic" not in name else "time per rod-step [us]")
         ax.set_ylabel("tip error [m]")

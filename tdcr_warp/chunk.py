@@ -95,10 +95,19 @@ def _copies(base, b: int) -> list:
     return [copy.deepcopy(base) for _ in range(b)]
 
 
-def solve_chunk(job, data: dict, rows: dict, threads: int | None = None) -> dict:
+def solve_chunk(job, data: dict, rows: dict, threads: int | None = None, progress=None) -> dict:
     """One chunk: the scene with its sample rows, through ``job``. ``threads`` sets the solver's
-    CPU threads where the scene leaves them open (a Ray task uses the one core it holds)."""
+    CPU threads where the scene leaves them open (a Ray task uses the one core it holds);
+    ``progress(step, steps)`` goes to jobs that take it (the time steps of control runs)."""
     scene = scene_from_dict(apply_rows(data, rows))
     if threads is not None and scene.options.threads is None:
         scene = replace(scene, options=replace(scene.options, threads=threads))
-    return job(scene)
+    return job(scene, progress=progress) if progress is not None and _takes_progress(job) else job(scene)
+
+
+def _takes_progress(job) -> bool:
+    import inspect
+    try:
+        return "progress" in inspect.signature(job).parameters
+    except (TypeError, ValueError):
+        return False

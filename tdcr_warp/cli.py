@@ -62,22 +62,39 @@ def _out_dir(args, default: Path, *complete: str) -> Path:
     return out
 
 
+def _strict(obj):
+    """obj with every non-finite float as None (null): strict JSON has no NaN or Infinity."""
+    if isinstance(obj, float):
+        return obj if np.isfinite(obj) else None
+    if isinstance(obj, dict):
+        return {k: _strict(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_strict(v) for v in obj]
+    return obj
+
+
 def _write_json(path: Path, obj) -> None:
+    """Strict JSON (a non-finite number is null), written atomically."""
     def write(tmp):
         with open(tmp, "w") as f:
-            json.dump(obj, f, indent=1)
+            json.dump(_strict(obj), f, indent=1, allow_nan=False)
     _write_atomic(path, write)
 
 
 def _settings(scene, args, device) -> dict:
-    """The StaticOptions fields, the device actually used and the Warp version."""
+    """The StaticOptions fields (``tol`` as the tolerance used, ``tolerance_m``), the device
+    actually used, the tdcr-warp and Warp versions and the scene file's text (docs/outputs.md)."""
     import warp as wp
+
+    from . import __version__
     out = asdict(scene.options)
+    out.pop("tol", None)  # None means the precision's default: tolerance_m is the value used
     try:
         dev = str(wp.get_device(None if device in (None, "default") else device))
     except (RuntimeError, ValueError):
         dev = str(device)
-    out.update(device=dev, warp=wp.__version__, warp_version=wp.__version__, tolerance_m=scene.options.tolerance)
+    out.update(device=dev, tolerance_m=scene.options.tolerance, tdcr_warp=__version__, warp=wp.__version__,
+               scene_text=scene.text)
     return out
 
 
@@ -98,16 +115,11 @@ def _print_rods(tips, ok, iters, resid, reasons, limit: int = 10) -> None:
 
 
 def _load_kernels(scene, args, dynamic: bool = False) -> float:
-    """Load (or compile, on first use) the scene's kernels before the timed run, and say so."""
+    """Load (or compile, on first use) the scene's kernels before the timed run, so that its rate
+    excludes them; a compile says so on stderr (tdcr_warp.solver.set_compile_notice)."""
     from .solver import load_kernels
 
-    quiet = getattr(args, "quiet", False)
-    if not quiet:
-        print("loading kernels (compiled on first use with this cache, then reused) ...", end=" ", flush=True)
-    seconds = load_kernels(scene.robot, scene.options, args.device, dynamic=dynamic)
-    if not quiet:
-        print(f"{seconds:.2f} s")
-    return seconds
+    return load_kernels(scene.robot, scene.options, args.device, dynamic=dynamic)
 
 
 def cmd_static(args) -> int:
@@ -129,8 +141,14 @@ def cmd_static(args) -> int:
     _print_rods(sol.tip_position, sol.converged, sol.iterations, sol.residual, reasons)
     _write_npz(out / "shapes.npz", sol.to_npz)
     if not args.no_figures:
-        from .plotting import plot_shapes
-        plot_shapes(sol.positions, sol.converged, out / "shapes.png")
+        from .drawing import robot_geometry
+        from .plotting import MAX_RODS_DRAWN, plot_robot
+        n = min(B, MAX_RODS_DRAWN)
+        geom = robot_geometry(scene.robot, sol.positions[:n], sol.rotations[:n], sol.s[:n], sol.tendon_tension_base[:n],
+                              scene.display)
+        plot_robot(geom, out / "shapes.png", converged=sol.converged[:n])
+    if args.html:
+        _html_static(scene, sol, out)
     results = {
         "scene": str(args.scene), "settings": _settings(scene, args, args.device or "default"),
         "batch_size": B, "wall_time_s": wall, "kernel_load_s": load_s,
@@ -192,29 +210,35 @@ def cmd_simulate(args) -> int:
     steps = spec.steps if args.steps is None else args.steps
     if steps > spec.steps:
         raise InputError(f"--steps {steps} exceeds the scene's [dynamics].steps = {spec.steps}")
+    _check_shapes(args, spec)
     out = _out_dir(args, Path("out") / Path(args.scene).stem, "results.json")
     load_s = _load_kernels(scene, args, dynamic=True)
     t0 = time.perf_counter()
     sim = Simulator(scene.robot, scene.tensions, dt=spec.dt, alpha=spec.alpha, options=scene.options,
                     device=args.device)
+    t1 = time.perf_counter()
     traj = sim.simulate(spec.schedule[:, :steps], steps, shapes_every=spec.shapes_every,
                         progress=not args.quiet)
-    wall = time.perf_counter() - t0
+    wall, stepping = time.perf_counter() - t0, time.perf_counter() - t1
     B = sim.B
     ok = traj.failed_step < 0
-    print(f"simulated {B} rod(s) x {steps} steps of {spec.dt} s in {wall:.2f} s "
-          f"({B * steps / wall:,.0f} rod-steps/s, real-time factor {steps * spec.dt / wall:.2f} per batch; "
-          "kernel loading excluded)")
+    print(f"simulated {B} rod(s) x {steps} steps of {spec.dt} s in {stepping:.2f} s "
+          f"({B * steps / stepping:,.0f} rod-steps/s, real-time factor {steps * spec.dt / stepping:.2f} per batch; "
+          f"kernel loading and the {t1 - t0:.2f} s static start excluded)")
     reasons = ["ok" if f < 0 else f"failed at step {f + 1}" for f in traj.failed_step]
     _print_rods(traj.tip_position[-1], ok, traj.iterations.max(axis=0), traj.residual[-1], reasons)
     _write_npz(out / "trajectory.npz", traj.to_npz)
     if not args.no_figures:
         from .plotting import plot_tip_history
         plot_tip_history(traj.time, traj.tip_position, traj.tip_velocity, traj.tip_acceleration, out)
+    if args.animate:
+        _animate(scene, traj, sim.grid, out)
+    if args.html:
+        _html_run(scene, traj, sim.grid, out)
     results = {
         "scene": str(args.scene), "settings": _settings(scene, args, args.device or "default")
         | {"dt": spec.dt, "alpha": spec.alpha, "steps": steps},
-        "batch_size": B, "wall_time_s": wall, "kernel_load_s": load_s,
+        "batch_size": B, "wall_time_s": wall, "stepping_s": stepping, "kernel_load_s": load_s,
         "final_tip_position": traj.tip_position[-1].tolist(), "completed": ok.tolist(),
         "failed_step": [int(f) + 1 if f >= 0 else None for f in traj.failed_step],
         "max_iterations": traj.iterations.max(axis=0).tolist(),
@@ -228,8 +252,52 @@ def cmd_simulate(args) -> int:
     return 0
 
 
+def _check_shapes(args, spec) -> None:
+    """--animate and --html need stored shapes: refuse before the run when the scene stores none."""
+    if getattr(args, "animate", False) and not spec.shapes_every:
+        raise InputError("--animate: the run stores no shapes: set [dynamics].shapes_every (e.g. 5)")
+    if getattr(args, "html", False) and not spec.shapes_every:
+        raise InputError("--html: the run stores no shapes: set [dynamics].shapes_every (e.g. 5)")
+
+
+def _html_static(scene, sol, out: Path) -> None:
+    """robot.html: the interactive viewer of the first solved rods (tdcr_warp.viewer)."""
+    from .viewer import MAX_RODS, write_viewer
+
+    n = min(len(sol.converged), MAX_RODS)
+    names = [f"rod {b}" + ("" if sol.converged[b] else " (not converged)") for b in range(n)]
+    _write_atomic(out / "robot.html", lambda tmp: write_viewer(
+        tmp, scene.robot, sol.positions[:n], sol.rotations[:n], sol.s[:n], sol.tendon_tension_base[:n],
+        display=scene.display, names=names))
+    print(f"wrote {out}/robot.html ({n} rod{'s' * (n > 1)})")
+
+
+def _html_run(scene, run, grid: np.ndarray, out: Path) -> None:
+    """robot.html: the interactive viewer of a trajectory or closed-loop run from its stored shapes."""
+    from .viewer import write_run_viewer
+
+    drawn = []
+    _write_atomic(out / "robot.html", lambda tmp: drawn.append(write_run_viewer(
+        tmp, scene.robot, run, grid, scene.tensions, display=scene.display)))
+    print(f"wrote {out}/robot.html ({drawn[0]} frames)")
+
+
+def _animate(scene, run, grid: np.ndarray, out: Path) -> None:
+    """robot.gif of a trajectory or closed-loop run from its stored shapes (tdcr_warp.plotting)."""
+    from .drawing import robot_geometry
+    from .plotting import MAX_ROBOTS_DRAWN, animate_robot
+
+    n = min(run.positions.shape[1], MAX_ROBOTS_DRAWN)
+    tau = np.concatenate([scene.tensions[None, :n] if scene.tensions.shape[0] > 1 else
+                          np.broadcast_to(scene.tensions, (1, n, scene.tensions.shape[1])), run.tensions[:, :n]])
+    frames = [robot_geometry(scene.robot, run.positions[i, :n], run.rotations[i, :n], grid[:n], tau[step],
+                             scene.display) for i, step in enumerate(run.shape_steps)]
+    drawn = animate_robot(frames, run.time[run.shape_steps], out / "robot.gif")
+    print(f"wrote {out}/robot.gif ({drawn} frames)")
+
+
 def cmd_control(args) -> int:
-    from .control import TipController, control_metrics, run_closed_loop, static_target
+    from .control import METRIC_UNITS, TipController, control_metrics, run_closed_loop, static_target
     from .dynamics import Simulator
     from .plotting import plot_control
     from .scene import load_scene
@@ -239,6 +307,7 @@ def cmd_control(args) -> int:
     if spec is None or ctl is None:
         raise InputError(f"{args.scene}: control needs [dynamics] and [control] tables")
     steps = spec.steps if args.steps is None else args.steps
+    _check_shapes(args, spec)
     out = _out_dir(args, Path("out") / Path(args.scene).stem, "metrics.json")
     t0 = time.perf_counter()
     if "target_tensions" in ctl:
@@ -250,7 +319,7 @@ def cmd_control(args) -> int:
     kw = {k: ctl[k] for k in ("method", "input_model", "gain_c", "gain_k", "epsilon", "phi", "tension_max",
                               "model_every") if k in ctl}
     controller = TipController(sim, target, **kw)
-    run = run_closed_loop(sim, controller, steps, progress=not args.quiet)
+    run = run_closed_loop(sim, controller, steps, progress=not args.quiet, shapes_every=spec.shapes_every)
     wall = time.perf_counter() - t0
     metrics = control_metrics(run, controller.tau_max)
     B = sim.B
@@ -261,7 +330,11 @@ def cmd_control(args) -> int:
               f"{metrics['settling_time'][b]:.3f} s, chatter {metrics['chatter'][b]:.2e} N, "
               f"mean tension {np.round(metrics['mean_tension'][b], 3).tolist()} N")
     _write_npz(out / "control.npz", run.to_npz)
-    plot_control(run, out)
+    plot_control(run, out, tension_max=controller.tau_max, gain_c=controller.C)
+    if args.animate:
+        _animate(scene, run, sim.grid, out)
+    if args.html:
+        _html_run(scene, run, sim.grid, out)
     results = {
         "scene": str(args.scene), "settings": _settings(scene, args, args.device or "default")
         | {"dt": spec.dt, "alpha": spec.alpha, "steps": steps, "method": controller.method,
@@ -269,6 +342,7 @@ def cmd_control(args) -> int:
         "batch_size": B, "wall_time_s": wall, "target": controller.target.tolist(),
         "completed": (sim.failed_step < 0).tolist(),
         "metrics": {k: np.where(np.isfinite(v), v, -1.0).tolist() for k, v in metrics.items()},
+        "units": {k: METRIC_UNITS[k] for k in metrics},
         "metrics_note": "settling_time -1 means the tip never stayed inside the 0.5 mm band",
     }
     _write_json(out / "metrics.json", results)
@@ -340,6 +414,12 @@ def _write_predictions(path: Path, meas, pred: dict) -> None:
     _write_atomic(path, write)
 
 
+# The units of predict's metrics.json entries (hardware.metrics; "1": a count, "%": of the robot's length).
+PREDICT_UNITS = {"rows": "1", "converged": "1", "rmse_mm": "mm", "rmse_aligned_mm": "mm", "median_mm": "mm",
+                 "p95_mm": "mm", "mean_offset_mm": "mm", "rmse_percent_of_length": "%", "wall_time_s": "s",
+                 "kernel_load_s": "s", "ms_per_row": "ms"}
+
+
 def cmd_predict(args) -> int:
     """Predict measured tips of a scene with a [hardware] table (tdcr_warp.hardware)."""
     from .hardware import metrics, predict, read_measurements
@@ -362,6 +442,7 @@ def cmd_predict(args) -> int:
     _write_json(out / "metrics.json", m | {"scene": str(args.scene), "data": [str(d) for d in args.data],
                                            "wall_time_s": pred["wall_s"], "kernel_load_s": load_s,
                                            "ms_per_row": 1e3 * pred["wall_s"] / len(meas),
+                                           "units": PREDICT_UNITS,
                                            "settings": _settings(scene, args, args.device or "default")})
     print(f"wrote {out}/metrics.json, predictions.csv, predict.png")
     return 0 if m["converged"] == m["rows"] else 1
@@ -390,7 +471,8 @@ def cmd_fit(args) -> int:
               f"{rep['training']['rmse_aligned_mm']:.3f} mm; parameters and uncertainty in fit.json.\n")
     _write_atomic(out / "fitted.toml", lambda tmp: Path(tmp).write_text(header + tomli_w.dumps(res["scene"])))
     _write_predictions(out / "predictions.csv", meas, res["prediction"])
-    _write_json(out / "fit.json", rep | {"scene": str(args.scene), "data": [str(d) for d in args.data]})
+    _write_json(out / "fit.json", rep | {"scene": str(args.scene), "data": [str(d) for d in args.data],
+                                         "settings": _settings(scene, args, args.device or "default")})
     t = rep["training"]
     print(f"fit in {rep['wall_s']:.0f} s, {rep['iterations']} iterations: training RMSE {t['rmse_mm']:.3f} mm "
           f"({t['rmse_percent_of_length']:.2f}% of the length), aligned {t['rmse_aligned_mm']:.3f} mm")
@@ -497,7 +579,12 @@ def _positive_int(text: str) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    import warp as wp
+
+    from . import __version__
+
     ap = argparse.ArgumentParser(prog="tdcr-warp", description="Batched tendon-driven continuum robots on Warp.")
+    ap.add_argument("--version", action="version", version=f"%(prog)s {__version__} (Warp {wp.__version__})")
     sub = ap.add_subparsers(dest="command", required=True)
     for name, helptext in (("static", "solve the statics of a scene"),
                            ("simulate", "run the dynamics of a scene ([dynamics] table)"),
@@ -526,10 +613,18 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--precision", choices=["float64", "float32"], help="override [solver].precision")
         if name in ("simulate", "control"):
             p.add_argument("--steps", type=_positive_int, help="run only the first STEPS steps")
+            p.add_argument("--animate", action="store_true",
+                           help="write robot.gif from the shapes stored every [dynamics].shapes_every steps")
+        if name in ("static", "simulate", "control"):
+            p.add_argument("--html", action="store_true",
+                           help="write robot.html, an interactive 3D viewer (one file, opens offline): the first "
+                                "10 rods" + ("" if name == "static" else
+                                             ", animated from the shapes stored every [dynamics].shapes_every steps"))
         if name in ("static", "simulate"):
             p.add_argument("--no-figures", action="store_true", help="skip the PNG figures (matplotlib costs ~0.7 s)")
-        if name not in ("static",):
-            p.add_argument("--quiet", action="store_true", help="no progress bar" if name != "ik" else "no messages")
+        p.add_argument("--quiet", action="store_true", help="no progress bar, no compile notice")
+        p.add_argument("-v", "--verbose", action="store_true",
+                       help="also Warp's line per kernel module loaded or compiled, with its time")
         if name in ("montecarlo", "workspace", "gain-grid"):
             p.add_argument("--chunk", type=int, help="rods per chunk (default [sweep].chunk)")
             p.add_argument("--resume", action="store_true", help="continue an interrupted sweep in --out")
@@ -565,6 +660,13 @@ def main(argv=None) -> int:
            and signal.getsignal(signal.SIGINT) is signal.default_int_handler)
     if own:  # (not where SIGINT is ignored, as in a background job, or handled by the caller)
         signal.signal(signal.SIGINT, _on_sigint)
+    from .solver import COMPILE_NOTICE, set_compile_notice
+
+    notice = COMPILE_NOTICE["enabled"]
+    set_compile_notice(not args.quiet)
+    if args.verbose:
+        import warp as wp
+        log_level, wp.config.log_level = wp.config.log_level, wp.LOG_INFO
     try:
         if args.device is not None and getattr(args, "backend", "local") == "local":
             import warp as wp
@@ -590,5 +692,8 @@ def main(argv=None) -> int:
         print(f"tdcr-warp: error: {e}", file=sys.stderr)
         return 1
     finally:
+        set_compile_notice(notice)
+        if args.verbose:
+            wp.config.log_level = log_level
         if own and signal.getsignal(signal.SIGINT) is _on_sigint:  # no SIGINT came: as it was
             signal.signal(signal.SIGINT, signal.default_int_handler)

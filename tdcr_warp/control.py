@@ -20,7 +20,7 @@ Every gain, target and bound is per rod.
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
@@ -202,7 +202,9 @@ class TipController:
 @dataclass
 class ControlRun:
     """Closed-loop record: time (T+1,), tip_position, tip_velocity, error (T+1, B, 3) [m, m/s, m],
-    sliding (T+1, B, 3) [m/s], tensions (T, B, K) [N], converged (T, B), target (B, 3)."""
+    sliding (T+1, B, 3) [m/s], tensions (T, B, K) [N], converged (T, B), target (B, 3);
+    shape_steps (S,), positions (S, B, N+1, 3) [m] and rotations (S, B, N+1, 3, 3): the shapes
+    every ``shapes_every`` steps (empty if 0)."""
 
     time: np.ndarray
     tip_position: np.ndarray
@@ -212,14 +214,23 @@ class ControlRun:
     tensions: np.ndarray
     converged: np.ndarray
     target: np.ndarray
+    shape_steps: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int32))
+    positions: np.ndarray = field(default_factory=lambda: np.zeros((0, 0, 0, 3)))
+    rotations: np.ndarray = field(default_factory=lambda: np.zeros((0, 0, 0, 3, 3)))
 
     def to_npz(self, path) -> None:
         np.savez_compressed(path, **asdict(self))
 
 
-def run_closed_loop(sim: Simulator, controller: TipController, steps: int, *, progress: bool = False) -> ControlRun:
+def run_closed_loop(sim: Simulator, controller: TipController, steps: int, *, progress=False,
+                    shapes_every: int = 0) -> ControlRun:
+    """Run ``steps`` steps of the controller on the simulated plant; ``shapes_every`` > 0 also
+    keeps the shapes every that many steps (and at the start). ``progress``: True for a
+    progress bar, or a callable ``progress(step, steps)`` called after every step."""
     B, K = sim.B, sim.robot.n_tendons
-    require_memory(steps * B * (8.0 * (12 + K) + 1), f"steps = {steps} for {B} rod(s): the closed-loop record")
+    n1 = sim.grid.shape[1]
+    require_memory(steps * B * (8.0 * (12 + K) + 1) + (steps // shapes_every if shapes_every else 0) * B * 96.0 * n1,
+                   f"steps = {steps} for {B} rod(s): the closed-loop record")
     tip = np.zeros((steps + 1, B, 3))
     vel = np.zeros((steps + 1, B, 3))
     S = np.zeros((steps + 1, B, 3))
@@ -227,19 +238,27 @@ def run_closed_loop(sim: Simulator, controller: TipController, steps: int, *, pr
     conv = np.zeros((steps, B), dtype=bool)
     tip[0], vel[0] = sim.tip_position, sim.tip_velocity
     S[0] = -sim.tip_velocity + controller.C * (controller.target - sim.tip_position)
-    bar = Progress(steps, B) if progress else None
+    shape_steps, shapes = ([0], [sim.shapes()]) if shapes_every else ([], [])
+    bar = Progress(steps, B) if progress is True else None
     for i in range(steps):
         taus[i] = controller()
         r = sim.step(taus[i])
         tip[i + 1], vel[i + 1], conv[i] = r.tip_position, r.tip_velocity, r.converged
         S[i + 1] = -vel[i + 1] + controller.C * (controller.target - tip[i + 1])
+        if shapes_every and (i + 1) % shapes_every == 0:
+            shape_steps.append(i + 1)
+            shapes.append(sim.shapes())
         if bar:
             bar.update(i + 1, int((~sim.alive).sum()))
+        elif callable(progress):
+            progress(i + 1, steps)
     if bar:
         bar.close()
     return ControlRun(time=sim.dt * np.arange(steps + 1), tip_position=tip, tip_velocity=vel,
                       error=controller.target[None] - tip, sliding=S, tensions=taus, converged=conv,
-                      target=controller.target.copy())
+                      target=controller.target.copy(), shape_steps=np.array(shape_steps, dtype=np.int32),
+                      positions=np.array([p for p, _ in shapes]) if shapes else np.zeros((0, B, n1, 3)),
+                      rotations=np.array([R for _, R in shapes]) if shapes else np.zeros((0, B, n1, 3, 3)))
 
 
 def control_metrics(run: ControlRun, tension_max: np.ndarray, band: float = 5e-4) -> dict[str, np.ndarray]:
@@ -268,6 +287,12 @@ def control_metrics(run: ControlRun, tension_max: np.ndarray, band: float = 5e-4
     return {"final_error": err[-1], "rms_error": np.sqrt((err[1:] ** 2).mean(axis=0)), "settling_time": settle,
             "overshoot": overshoot, "chatter": chatter, "reversal_fraction": flips, "tension_rate": rate, "saturation_fraction": sat,
             "peak_tension": run.tensions.max(axis=(0, 2)), "mean_tension": run.tensions.mean(axis=0)}
+
+
+# The unit of each control_metrics entry ("1": a fraction of the steps; tension_rate is per step).
+METRIC_UNITS = {"final_error": "m", "rms_error": "m", "settling_time": "s", "overshoot": "m", "chatter": "N",
+                "reversal_fraction": "1", "tension_rate": "N", "saturation_fraction": "1", "peak_tension": "N",
+                "mean_tension": "N"}
 
 
 def static_target(robot: Robot, tensions, **kw) -> np.ndarray:

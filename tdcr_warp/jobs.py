@@ -43,8 +43,9 @@ def static_job(scene: Scene, device=None, shapes: bool = False) -> dict[str, np.
     return out
 
 
-def control_job(scene: Scene, nominal: Scene | None = None, device=None) -> dict[str, np.ndarray]:
-    """One closed-loop run per rod; the controller models ``nominal``'s robot if given."""
+def control_job(scene: Scene, nominal: Scene | None = None, device=None, progress=None) -> dict[str, np.ndarray]:
+    """One closed-loop run per rod; the controller models ``nominal``'s robot if given;
+    ``progress(step, steps)`` is called after every time step."""
     spec, ctl = scene.dynamics, scene.control
     if spec is None or ctl is None:
         raise InputError("this job needs [dynamics] and [control] tables")
@@ -60,7 +61,7 @@ def control_job(scene: Scene, nominal: Scene | None = None, device=None) -> dict
     kw = {k: ctl[k] for k in ("method", "input_model", "gain_c", "gain_k", "epsilon", "phi", "tension_max",
                               "model_every") if k in ctl}
     controller = TipController(sim, target, model_robot=None if nominal is None else _tiled(nominal, B), **kw)
-    run = run_closed_loop(sim, controller, spec.steps)
+    run = run_closed_loop(sim, controller, spec.steps, progress=progress or False)
     m = control_metrics(run, controller.tau_max)
     ok = sim.failed_step < 0
     return {"ok": ok, "final_tip": run.tip_position[-1], "target": controller.target,
@@ -81,12 +82,13 @@ class SweepJob:
     nominal: dict | None = None
     shapes: bool = False
 
-    def __call__(self, scene: Scene) -> dict[str, np.ndarray]:
+    def __call__(self, scene: Scene, progress=None) -> dict[str, np.ndarray]:
+        """The chunk's per-rod arrays; ``progress(step, steps)``: the time steps of control runs."""
         if self.name == "gain-grid":
-            return control_job(scene, device=self.device)
+            return control_job(scene, device=self.device, progress=progress)
         res = static_job(scene, self.device, shapes=self.shapes)
         if self.name == "montecarlo" and scene.control is not None:
-            ctl = control_job(scene, nominal=scene_from_dict(self.nominal), device=self.device)
+            ctl = control_job(scene, nominal=scene_from_dict(self.nominal), device=self.device, progress=progress)
             res["control_ok"] = ctl.pop("ok")
             res.update(ctl)
         return res
@@ -102,25 +104,20 @@ def _tiled(scene: Scene, B: int):
 
 
 def convex_hull_2d(pts: np.ndarray) -> np.ndarray:
-    """Convex hull (counter-clockwise vertices) of 2D points, Andrew's monotone chain."""
-    pts = np.unique(pts, axis=0)
+    """Convex hull of 2D points (scipy.spatial, Qhull): its vertices counter-clockwise from the
+    lowest-x (then lowest-y) one; a degenerate set (fewer than 3 distinct points, or all on a
+    line) gives its distinct points, or the two ends of the line."""
+    from scipy.spatial import ConvexHull, QhullError
+
+    pts = np.unique(np.asarray(pts, dtype=np.float64), axis=0)  # sorted by x, then y
     if len(pts) < 3:
         return pts
-
-    def half(points):
-        h = []
-        for p in points:
-            while len(h) >= 2 and _turn(h[-2], h[-1], p) <= 0:
-                h.pop()
-            h.append(p)
-        return h
-    lower, upper = half(pts), half(pts[::-1])
-    return np.array(lower[:-1] + upper[:-1])
-
-
-def _turn(o, a, b) -> float:
-    """z of (a - o) x (b - o): > 0 for a left turn."""
-    return (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
+    try:
+        v = ConvexHull(pts).vertices  # counter-clockwise in 2D
+    except QhullError:  # all on a line: its ends (the first and last in x, then y)
+        return pts[[0, -1]]
+    first = int(np.lexsort((pts[v, 1], pts[v, 0]))[0])
+    return pts[np.roll(v, -first)]
 
 
 def constant_curvature_tip(robot, tensions: np.ndarray) -> np.ndarray:

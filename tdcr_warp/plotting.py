@@ -27,27 +27,140 @@ def _save(fig, path: Path) -> None:
             tmp.unlink()
 
 
-def plot_shapes(positions: np.ndarray, converged: np.ndarray, path: Path) -> None:
-    """3D view and x-z projection of rod shapes (B, N+1, 3) [m]; failed rods dashed red."""
-    fig = plt.figure(figsize=(11, 5))
-    ax3 = fig.add_subplot(1, 2, 1, projection="3d")
-    ax2 = fig.add_subplot(1, 2, 2)
-    for b in range(min(len(positions), MAX_RODS_DRAWN)):
-        p = positions[b]
-        style = dict(color="C0", lw=1.2) if converged[b] else dict(color="red", ls="--", lw=1.0)
-        ax3.plot(p[:, 0], p[:, 1], p[:, 2], **style)
-        ax2.plot(p[:, 0], p[:, 2], **style)
+MAX_ROBOTS_DRAWN = 10  # rods drawn with disks and tendons; further rods: backbone only
+FRAME_COLOURS = ("tab:red", "tab:green", "tab:blue")  # x, y, z axes of the base and tip frames
+
+
+def _equal_limits(points: np.ndarray) -> tuple[np.ndarray, float]:
+    """Centre (3,) and half-width of a cube holding every point (..., 3)."""
+    pts = points.reshape(-1, 3)
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    return (lo + hi) / 2, max(float((hi - lo).max()) / 2 * 1.08, 1e-6)
+
+
+def _draw_robot(axes: dict, geom, converged, tension_norm, cmap) -> None:
+    """Draw every rod of ``geom`` (drawing.RobotGeometry) into the 3D axes ``axes['3d']`` and
+    the projections ``axes[(i, j)]`` (world components i, j). Artists carry a gid: backbone,
+    disk, tendon, frame."""
+    B = geom.rods
+    L = float(geom.s[:, -1].max())
+    views = [("3d", (0, 1, 2))] + [(k, k) for k in axes if k != "3d"]
+
+    def line(pts, **kw):
+        for key, comp in views:
+            ax = axes[key]
+            ax.plot(*(pts[..., c] for c in comp), **kw)
+    rims = geom.disk_rims()
+    for b in range(B):
+        ok = converged is None or bool(converged[b])
+        colour = f"C{b % 10}" if ok else "red"
+        full = b < MAX_ROBOTS_DRAWN
+        line(geom.backbone[b], color=colour, lw=3.0 if full else 1.0, ls="-" if ok else "--", gid="backbone",
+             label=(f"rod {b}" if ok else f"rod {b} (not converged)") if b < 20 else None)
+        if not full:
+            continue
+        for d in range(rims.shape[1]):
+            line(rims[b, d], color="0.55", lw=0.7, gid="disk")
+        for k, pts in enumerate(geom.tendon_points):
+            tau = float(geom.tension[b, k])
+            line(pts[b], color=cmap(tension_norm(tau)), lw=1.6, gid="tendon")
+        for origin, R in ((np.zeros(3), np.eye(3)), (geom.tip_position[b], geom.tip_rotation[b])):
+            for c in range(3):
+                line(np.stack([origin, origin + 0.05 * L * R[:, c]]), color=FRAME_COLOURS[c], lw=1.5, gid="frame")
+
+
+def _robot_axes(fig, points: np.ndarray) -> dict:
+    """A 3D view (a cube around every point: the true shape), a side view (x-z) and a top view
+    (x-y), each 2D view with equal axes around its own extent of ``points`` (P, 3)."""
+    axes = {"3d": fig.add_subplot(1, 3, 1, projection="3d"), (0, 2): fig.add_subplot(1, 3, 2),
+            (0, 1): fig.add_subplot(1, 3, 3)}
+    ax3 = axes["3d"]
+    centre, half = _equal_limits(points)
+    for c, set_lim in enumerate((ax3.set_xlim, ax3.set_ylim, ax3.set_zlim)):
+        set_lim(centre[c] - half, centre[c] + half)
+    ax3.set_box_aspect((1, 1, 1))
     ax3.set_xlabel("x [m]")
     ax3.set_ylabel("y [m]")
     ax3.set_zlabel("z [m]")
-    ax3.set_title("rod shapes")
-    ax2.set_xlabel("x [m]")
-    ax2.set_ylabel("z [m]")
-    ax2.set_aspect("equal", adjustable="datalim")
-    ax2.set_title("x-z projection")
-    ax2.grid(True, alpha=0.3)
-    fig.tight_layout()
-    _save(fig, path)
+    for (i, j), title in (((0, 2), "side (x-z)"), ((0, 1), "top (x-y)")):
+        ax = axes[(i, j)]
+        lo, hi = points[:, [i, j]].min(axis=0), points[:, [i, j]].max(axis=0)
+        mid, h = (lo + hi) / 2, max(float((hi - lo).max()) / 2 * 1.1, 1e-6)
+        ax.set_xlim(mid[0] - h, mid[0] + h)
+        ax.set_ylim(mid[1] - h, mid[1] + h)
+        ax.set_aspect("equal")
+        ax.set_xlabel(f"{'xyz'[i]} [m]")
+        ax.set_ylabel(f"{'xyz'[j]} [m]")
+        ax.set_title(title)
+        ax.grid(True, alpha=0.3)
+    return axes
+
+
+def _tension_scale(tensions: np.ndarray):
+    from matplotlib.colors import Normalize
+    top = float(np.max(tensions)) if tensions.size else 0.0
+    return Normalize(0.0, top if top > 0 else 1.0), plt.get_cmap("plasma")
+
+
+def plot_robot(geom, path: Path | None = None, converged=None, title: str | None = None):
+    """The robot as roboticists draw it, from a drawing.RobotGeometry: backbone (a thick line,
+    one colour per rod, legend), disks, every tendon's path through the disks coloured by its
+    tension (colour bar; rod 0's tensions in the title), base and tip frames
+    (x red, y green, z blue), in a 3D view, a side view and a top view, all with equal axes.
+    Rods beyond MAX_ROBOTS_DRAWN are drawn as backbones only. Returns the Figure (saved to
+    ``path`` and closed if given)."""
+    pts = np.concatenate([p.reshape(-1, 3) for p in [geom.backbone, *geom.tendon_points]] + [np.zeros((1, 3))])
+    fig = plt.figure(figsize=(15, 5.2), layout="constrained")
+    axes = _robot_axes(fig, pts)
+    norm, cmap = _tension_scale(geom.tension[:MAX_ROBOTS_DRAWN])
+    _draw_robot(axes, geom, converged, norm, cmap)
+    dx = np.linalg.norm(geom.tip_position[0, :2]) * 1e3
+    tensions = ", ".join(f"{k}: {t:.2f}" for k, t in enumerate(geom.tension[0]))
+    axes["3d"].set_title(title or f"rod 0: tip {np.round(geom.tip_position[0] * 1e3, 1).tolist()} mm "
+                                  f"({dx:.1f} mm off the axis)\ntendon tensions [N] {tensions}", fontsize=9)
+    if geom.rods > 1:
+        axes[(0, 2)].legend(fontsize=7, loc="best")
+    if geom.tendon_points:
+        fig.colorbar(plt.cm.ScalarMappable(norm=norm, cmap=cmap), ax=axes[(0, 1)], shrink=0.8,
+                     label="tendon tension [N]")
+    if path is not None:
+        _save(fig, path)
+    return fig
+
+
+def animate_robot(frames: list, times: np.ndarray, path: Path, converged=None, fps: int = 15, max_frames: int = 120):
+    """An animated GIF (Pillow) of a run from its stored shapes: ``frames`` a list of
+    drawing.RobotGeometry (one per stored step), ``times`` (S,) [s]. At most ``max_frames``
+    frames (evenly picked), every frame on the same equal axes. Returns the frames drawn."""
+    from matplotlib.animation import FuncAnimation, PillowWriter
+
+    pick = np.unique(np.linspace(0, len(frames) - 1, min(len(frames), max_frames)).round().astype(int))
+    every = np.concatenate([np.concatenate([g.backbone.reshape(-1, 3)] + [t.reshape(-1, 3) for t in g.tendon_points])
+                            for g in (frames[i] for i in pick)] + [np.zeros((1, 3))])
+    norm, cmap = _tension_scale(np.stack([frames[i].tension[:MAX_ROBOTS_DRAWN] for i in pick]))
+    fig = plt.figure(figsize=(12, 4.4), layout="constrained")
+    axes = _robot_axes(fig, every)
+    fig.colorbar(plt.cm.ScalarMappable(norm=norm, cmap=cmap), ax=axes[(0, 1)], shrink=0.8, label="tendon tension [N]")
+    fig.canvas.draw()
+    fig.set_layout_engine("none")  # laid out once: every frame keeps the same axes
+
+    def draw(n):
+        for ax in axes.values():
+            for ln in list(ax.lines):
+                ln.remove()
+        _draw_robot(axes, frames[pick[n]], converged, norm, cmap)
+        axes["3d"].set_title(f"t = {times[pick[n]]:.3f} s", fontsize=9)
+    anim = FuncAnimation(fig, draw, frames=len(pick))
+    path = Path(path)
+    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp{path.suffix}")
+    try:
+        anim.save(tmp, writer=PillowWriter(fps=fps), dpi=80)
+        os.replace(tmp, path)
+    finally:
+        plt.close(fig)
+        if tmp.exists():
+            tmp.unlink()
+    return len(pick)
 
 
 def plot_tip_history(time: np.ndarray, tip: np.ndarray, vel: np.ndarray, acc: np.ndarray, out_dir: Path) -> None:
@@ -75,10 +188,22 @@ def plot_tip_history(time: np.ndarray, tip: np.ndarray, vel: np.ndarray, acc: np
     _save(fig, out_dir / "tip_rates.png")
 
 
-def plot_control(run, out_dir: Path) -> None:
-    """The report's control figures: tip displacement, tension history with its mean, error
-    norm, and the phase portraits x vs x_t and e vs e_t (x components; at most
-    ``MAX_RODS_DRAWN`` rods)."""
+def _time_arrows(ax, x: np.ndarray, y: np.ndarray) -> None:
+    """Mark where a phase curve starts (o) and ends (x), with arrows along it: time's direction."""
+    ax.plot(x[0], y[0], "ko", ms=4)
+    ax.plot(x[-1], y[-1], "kx", ms=6)
+    for f in (0.1, 0.3, 0.6):
+        i = int(f * (len(x) - 2))
+        if x[i + 1] != x[i] or y[i + 1] != y[i]:
+            ax.annotate("", xy=(x[i + 1], y[i + 1]), xytext=(x[i], y[i]),
+                        arrowprops=dict(arrowstyle="->", color="k", lw=0.8))
+
+
+def plot_control(run, out_dir: Path, tension_max=None, gain_c=None) -> None:
+    """The report's control figures: tip displacement; tension history with its mean and the
+    tension limit ``tension_max`` (B, K) [N]; error norm and the phase portraits x vs x_t and e
+    vs e_t (x components, start o, end x, arrows in time's direction) with the sliding surface
+    S = e_t + C e = 0 of ``gain_c`` (B, 3) [1/s] (at most ``MAX_RODS_DRAWN`` rods)."""
     nb = min(run.tip_position.shape[1], MAX_RODS_DRAWN)
     t = run.time
     fig, axes = plt.subplots(1, 3, figsize=(13, 4))
@@ -96,22 +221,40 @@ def plot_control(run, out_dir: Path) -> None:
     for k in range(K):
         line, = ax.plot(t[1:], run.tensions[:, 0, k], lw=1, label=f"tendon {k + 1}")
         ax.axhline(run.tensions[:, 0, k].mean(), color=line.get_color(), ls="--", lw=0.8)
+    if tension_max is not None:
+        limits = np.unique(np.broadcast_to(tension_max, (run.tensions.shape[1], K))[0])
+        for i, lim in enumerate(limits[np.isfinite(limits)]):
+            ax.axhline(lim, color="k", ls=":", lw=1.2, label="tension limit" if i == 0 else None)
     ax.set_xlabel("t [s]")
     ax.set_ylabel("tension [N] (rod 0; dashed: mean)")
+    ax.set_title("tendon tensions")
     ax.legend()
     ax.grid(True, alpha=0.3)
     fig.tight_layout()
     _save(fig, out_dir / "control_tension.png")
-    fig, axes = plt.subplots(1, 3, figsize=(13, 4))
+    fig, axes = plt.subplots(1, 3, figsize=(13, 4.2))
     axes[0].semilogy(t, np.linalg.norm(run.error[:, :nb], axis=2) + 1e-12, lw=1)
     axes[0].set_xlabel("t [s]")
     axes[0].set_ylabel("|e| [m]")
-    axes[1].plot(run.tip_position[:, :nb, 0] * 1e3, run.tip_velocity[:, :nb, 0], lw=1)
+    axes[0].set_title("tip error")
+    x_mm, v = run.tip_position[:, :nb, 0] * 1e3, run.tip_velocity[:, :nb, 0]
+    e_mm, e_t = run.error[:, :nb, 0] * 1e3, -run.tip_velocity[:, :nb, 0]
+    axes[1].plot(x_mm, v, lw=1)
     axes[1].set_xlabel("x [mm]")
     axes[1].set_ylabel("x_t [m/s]")
-    axes[2].plot(run.error[:, :nb, 0] * 1e3, -run.tip_velocity[:, :nb, 0], lw=1)
+    axes[1].set_title("phase portrait of the tip (x)")
+    axes[2].plot(e_mm, e_t, lw=1)
+    if gain_c is not None:
+        C = float(np.broadcast_to(gain_c, (run.tip_position.shape[1], 3))[0, 0])
+        lim = np.array([e_mm.min(), e_mm.max()])
+        axes[2].plot(lim, -C * lim / 1e3, "r--", lw=1, label=f"S = e_t + C e = 0 (C = {C:g} 1/s)")
+        axes[2].legend(fontsize=8)
     axes[2].set_xlabel("e_x [mm]")
     axes[2].set_ylabel("e_x,t [m/s]")
+    axes[2].set_title("error phase portrait (x)")
+    for b in range(min(nb, 3)):
+        _time_arrows(axes[1], x_mm[:, b], v[:, b])
+        _time_arrows(axes[2], e_mm[:, b], e_t[:, b])
     for ax in axes:
         ax.grid(True, alpha=0.3)
     fig.tight_layout()
@@ -154,16 +297,18 @@ def plot_montecarlo(tips: np.ndarray, nominal: np.ndarray, err_hist, mean: np.nd
 
 
 def plot_workspace(tips: np.ndarray, total_tension: np.ndarray, cc: np.ndarray, boundary: list, out_dir: Path) -> None:
-    """Tip cloud: 3D, top (x-y) and side (x-z) views coloured by total tension, the convex hull
-    per height slice, and the constant-curvature prediction (grey) beside it."""
+    """Tip cloud: 3D, top (x-y, equal axes) and side (x-z, z scaled to its own extent: a workspace
+    is a thin bowl) views coloured by total tension, the convex hull per height slice, and the
+    constant-curvature prediction (grey) beside it."""
     sub = slice(None, None, max(1, len(tips) // 30000))
-    fig = plt.figure(figsize=(15, 4.8))
+    fig = plt.figure(figsize=(16, 5), layout="constrained")
     ax3 = fig.add_subplot(1, 3, 1, projection="3d")
     sc = ax3.scatter(tips[sub, 0], tips[sub, 1], tips[sub, 2], c=total_tension[sub], s=1, cmap="viridis")
     ax3.set_xlabel("x [m]")
     ax3.set_ylabel("y [m]")
     ax3.set_zlabel("z [m]")
-    for k, (i, j, name) in enumerate(((0, 1, "top (x-y)"), (0, 2, "side (x-z)"))):
+    both = np.concatenate([tips[sub], cc[sub]])
+    for k, (i, j, name) in enumerate(((0, 1, "top (x-y)"), (0, 2, "side (x-z), z exaggerated"))):
         ax = fig.add_subplot(1, 3, k + 2)
         ax.scatter(cc[sub, i], cc[sub, j], s=1, c="0.75", label="constant curvature")
         ax.scatter(tips[sub, i], tips[sub, j], s=1, c=total_tension[sub], cmap="viridis", label="Cosserat")
@@ -171,13 +316,17 @@ def plot_workspace(tips: np.ndarray, total_tension: np.ndarray, cc: np.ndarray, 
             for sl in boundary:
                 h = np.array(sl["hull_xy"] + sl["hull_xy"][:1])
                 ax.plot(h[:, 0], h[:, 1], "k-", lw=0.6)
+            ax.set_aspect("equal", adjustable="datalim")
+        else:
+            lo, hi = both[:, j].min(), both[:, j].max()
+            pad = 0.05 * max(hi - lo, 1e-6)
+            ax.set_ylim(lo - pad, hi + pad)
         ax.set_xlabel(f"{'xyz'[i]} [m]")
         ax.set_ylabel(f"{'xyz'[j]} [m]")
         ax.set_title(name)
-        ax.set_aspect("equal", adjustable="datalim")
         ax.legend(markerscale=8, fontsize=8)
         ax.grid(True, alpha=0.3)
-    fig.colorbar(sc, ax=fig.axes, label="total tension [N]", shrink=0.8)
+    fig.colorbar(sc, ax=fig.axes[-1], label="total tension [N]", shrink=0.8)
     _save(fig, out_dir / "workspace.png")
 
 

@@ -1,43 +1,55 @@
-"""A one-line progress bar on stderr, shared by dynamics, control and sweeps."""
+"""The progress bar of dynamics, control and sweeps: tqdm on stderr (rates, ETA, terminal width,
+throttled redraws), counting rod-units (rod-steps, rods) so that its rate is the one the
+commands report, with the failed rods and a note beside it."""
 
 from __future__ import annotations
 
 import sys
 import time
 
+from tqdm import tqdm
+
 
 class Progress:
-    """A one-line progress bar on stderr: done/total units, rod-units/s, ETA, failed rods.
-    ``start``: units already done before this run (resumed), left out of the rate."""
+    """done/total units of ``rods`` rods each (the bar counts total x rods rod-units), rod-units/s,
+    ETA, failed rods. ``start``: units already done before this run (resumed), left out of the
+    rate."""
 
-    line_open = False  # whether a bar's line on stderr is unfinished (a message would follow on it)
+    active: "Progress | None" = None  # the bar on the screen (a message printed now would join its line)
 
-    def __init__(self, total: int, rods: int, unit: str = "steps", rate_unit: str = "rod-steps/s", start: int = 0):
-        self.total, self.rods, self.t0, self.start = total, rods, time.perf_counter(), start
-        self.unit, self.rate_unit = unit, rate_unit
-        self.shown = -1.0
+    def __init__(self, total: int, rods: int, rate_unit: str = "rod-steps/s", start: int = 0):
+        self.rods = rods
+        self.bar = None
+        Progress.active = self  # before tqdm draws: an interrupt may come while it does
+        self.bar = tqdm(total=total * rods, initial=start * rods, unit=rate_unit.removesuffix("/s"),
+                        unit_scale=True, dynamic_ncols=True, mininterval=0.2, smoothing=0.0, leave=True)
+        self.bar.set_postfix_str("", refresh=False)
+        self.shown = time.perf_counter()
 
     def update(self, done: int, failed: int, note: str = "") -> None:
+        """``done`` units are done, ``failed`` rods have failed; ``note``: what is running."""
+        delta = done * self.rods - self.bar.n
         now = time.perf_counter()
-        if done < self.total and now - self.shown < 0.2:
+        self.bar.set_postfix_str(f"failed {failed}{note}", refresh=False)
+        if delta:
+            self.bar.update(delta)
+        elif now - self.shown >= 0.2:  # news without progress (a chunk started, a step of it)
+            self.bar.refresh()
+        else:
             return
         self.shown = now
-        el = now - self.t0
-        rate = (done - self.start) * self.rods / el if el > 0 else 0.0
-        eta = el / (done - self.start) * (self.total - done) if done > self.start else 0.0
-        filled = int(30 * done / self.total)
-        Progress.line_open = True
-        sys.stderr.write(f"\r[{'#' * filled}{'.' * (30 - filled)}] {done}/{self.total} {self.unit}{note} "
-                         f"{rate:,.0f} {self.rate_unit} ETA {eta:5.1f} s failed {failed}")
-        sys.stderr.flush()
 
     def close(self) -> None:
-        sys.stderr.write("\n")
-        Progress.line_open = False
+        if self.bar is None:  # interrupted while tqdm drew its first line
+            sys.stderr.write("\n")
+        else:
+            self.bar.close()
+        if Progress.active is self:
+            Progress.active = None
 
     @staticmethod
     def end_line() -> None:
-        """End the line of a bar left unfinished (by an interrupt), so that a message starts on its own."""
-        if Progress.line_open:
-            sys.stderr.write("\n")
-            Progress.line_open = False
+        """Close an interrupted bar (its line stays, ended), so that a message starts on its own
+        line and the bar is not drawn again after it."""
+        if Progress.active is not None:
+            Progress.active.close()

@@ -24,11 +24,12 @@ Every error is an :class:`InputError` naming the table, the key and the value.
 from __future__ import annotations
 
 import tomllib
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 from pathlib import Path
 
 import numpy as np
 
+from .drawing import display_options
 from .robot import (InputError, PointForce, Robot, Tendon, check_displacements, check_slip, check_tensions,
                     require_memory)
 from .types import StaticOptions
@@ -49,7 +50,7 @@ SOLVER_KEYS = {f.name for f in fields(StaticOptions)} | {"preset"}
 IK_KEYS = {"targets", "target_rotations", "tension_max", "displacement_range", "tol", "max_iter"}
 HARDWARE_KEYS = {"servo_columns", "marker_offset", "base_offset"}
 TABLES = {"robot", "tendons", "loads", "actuation", "solver", "dynamics", "control", "sweep", "uncertainty", "ik",
-          "hardware"}
+          "hardware", "display"}
 MAX_DEPTH = 16  # tables and lists nested deeper than any scene needs (a handful) are refused
 
 
@@ -84,6 +85,8 @@ class Scene:
     slip: np.ndarray | None = None
     ik: dict | None = None
     hardware: dict | None = None
+    display: dict | None = None  # the [display] table, checked (tdcr_warp.drawing)
+    text: str | None = None  # the TOML file's content (load_scene; None for a scene made from a dict)
 
     def static_command(self) -> dict:
         """The keyword arguments of solve_static for this scene's actuation."""
@@ -108,7 +111,7 @@ def load_scene(path) -> Scene:
         raise InputError(f"{path}: invalid TOML: arrays or inline tables nested too deeply to parse (a scene "
                          f"takes at most {MAX_DEPTH} levels)") from None
     try:
-        return scene_from_dict(data)
+        return replace(scene_from_dict(data), text=text)
     except InputError as e:
         raise InputError(f"{path}: {e}") from None
 
@@ -346,5 +349,6 @@ def scene_from_dict(data: dict) -> Scene:
             v = _numbers(hardware.get(key, [0.0, 0.0, 0.0]), f"[hardware].{key}")
             if not (isinstance(v, list) and len(v) == 3):
                 raise InputError(f"[hardware].{key}: expected [x, y, z] in m, got {v!r}")
+    display = display_options(data.get("display")) if "display" in data else None
     return Scene(robot=robot, tensions=tensions, options=options, dynamics=dynamics, source=data, control=control,
-                 displacements=displacements, slip=slip, ik=ik, hardware=hardware)
+                 displacements=displacements, slip=slip, ik=ik, hardware=hardware, display=display)

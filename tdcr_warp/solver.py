@@ -11,6 +11,8 @@ the host only reads it.
 from __future__ import annotations
 
 import functools
+import os
+import sys
 import time
 
 import numpy as np
@@ -32,11 +34,40 @@ def _fused(driver: str | None, device) -> bool:
     return (driver or ("probes" if device.is_cuda else "fused")) == "fused"
 
 
+COMPILE_NOTICE = {"enabled": True}  # the one-line notice on stderr before a kernel compile
+
+
+def set_compile_notice(enabled: bool) -> None:
+    """Say on stderr when kernels are about to be compiled (default on; the CLI's --quiet turns it off)."""
+    COMPILE_NOTICE["enabled"] = bool(enabled)
+
+
+def _needs_compile(module, device, block_dim: int) -> bool:
+    """Whether loading ``module`` compiles it: not loaded in this process and not in Warp's kernel
+    cache (False where Warp's internals differ from 1.19's: no notice rather than a wrong one)."""
+    try:
+        if module.execs.get((device.context, block_dim)) is not None:
+            return False
+        return not os.path.isdir(os.path.join(wp.config.kernel_cache_dir, module.get_module_identifier(block_dim)))
+    except (AttributeError, TypeError):
+        return False
+
+
 def _load_solver_kernels(k, fused: bool, evaluate: bool, device) -> None:
     """Compile (or load) the kernels a Shooting of variant k runs: its Newton driver, and with
-    ``evaluate`` the evaluation of a known state (dynamics; the probes of sensitivities)."""
-    for kernel in (k.solve if fused else k.probe,) + ((k.evaluate,) if evaluate else ()):
-        kernel.module.load(device, 1 if device.is_cpu else 256)
+    ``evaluate`` the evaluation of a known state (dynamics; the probes of sensitivities). Before
+    a compile, one line on stderr says so (``set_compile_notice``), and after it how long it took."""
+    block = 1 if device.is_cpu else 256
+    kernels = (k.solve if fused else k.probe,) + ((k.evaluate,) if evaluate else ())
+    compiling = COMPILE_NOTICE["enabled"] and any(_needs_compile(kn.module, device, block) for kn in kernels)
+    if compiling:
+        print(f"tdcr-warp: compiling kernels for {device} (first use of this robot's features and solver options "
+              "with this kernel cache; typically 5-30 s, then cached) ...", end=" ", file=sys.stderr, flush=True)
+    t0 = time.perf_counter()
+    for kernel in kernels:
+        kernel.module.load(device, block)
+    if compiling:
+        print(f"{time.perf_counter() - t0:.1f} s", file=sys.stderr, flush=True)
 
 
 def load_kernels(robot: Robot, options, device=None, *, dynamic: bool = False) -> float:

@@ -250,11 +250,16 @@ def open_sweep(out_dir) -> SweepRun:
                     fields=man["fields"])
 
 
-def _local_chunks(data: dict, job, todo: list[int], store: ChunkStore, samples: Samples):
-    """The in-process backend: chunks one after another in this process, written here."""
+def _local_chunks(data: dict, job, todo: list[int], store: ChunkStore, samples: Samples, show=None):
+    """The in-process backend: chunks one after another in this process, written here;
+    ``show(note)`` tells what the running chunk is doing."""
     for c in todo:
-        rows = samples(*store.bounds(c))
-        yield c, store.write(c, solve_chunk(job, data, rows), rows)
+        lo, hi = store.bounds(c)
+        if show:
+            show(f"chunk {c + 1}: {hi - lo} rods")
+        rows = samples(lo, hi)
+        step = None if show is None else (lambda i, n, c=c: show(f"chunk {c + 1}: step {i}/{n}"))
+        yield c, store.write(c, solve_chunk(job, data, rows, progress=step), rows)
 
 
 def _prepare(out: Path, manifest: dict, resume: bool, overwrite: bool) -> None:
@@ -347,10 +352,15 @@ def run_sweep(data: dict, job, out_dir, *, chunk: int | None = None, resume: boo
         missing = [c for c in range(store.n_chunks) if c not in done]
         todo = missing if max_chunks is None else missing[:max_chunks]
         start_rods = done_rods = sum(store.bounds(c)[1] - store.bounds(c)[0] for c in done)
-        bar = Progress(M, 1, unit="rods", rate_unit="rods/s", start=done_rods) if progress and todo else None
+        bar = Progress(M, 1, rate_unit="rods/s", start=done_rods) if progress and todo else None
+
+        def show(note: str = "") -> None:
+            bar.update(done_rods, failed, f" ({len(done)}/{store.n_chunks} chunks{'; ' + note if note else ''})")
+        if bar:
+            show("starting")
         t0 = time.perf_counter()
         if backend == "local":
-            finished = _local_chunks(data, job, todo, store, samples)
+            finished = _local_chunks(data, job, todo, store, samples, show if bar else None)
         else:
             from .cluster import ray_chunks
             finished = ray_chunks(data, job, todo, store, samples, address=address, workers=workers,
@@ -362,7 +372,7 @@ def run_sweep(data: dict, job, out_dir, *, chunk: int | None = None, resume: boo
                 done_rods += hi - lo
                 failed += n_failed
                 if bar:
-                    bar.update(done_rods, failed, f" ({len(done)}/{store.n_chunks} chunks)")
+                    show()
         finally:
             finished.close()
             if bar:

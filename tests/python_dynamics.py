@@ -1,7 +1,7 @@
 """A straightforward per-rod Python implementation of the report's dynamic method, written
-from shared PHYSICS.md (not part of the package): explicit Euler along s with N intervals,
-BDF-alpha history per node, ``scipy.optimize.fsolve`` on the 6 base unknowns every step.
-The report's bugs are not ported (tendon loads in the ODE, v' and u' from the 6x6 solve, the
+from the model's equations (docs/physics.md; not part of the package): explicit Euler along s
+with N intervals, BDF-alpha history per node, ``scipy.optimize.fsolve`` on the 6 base unknowns
+every step. The report's bugs are not ported (tendon loads in the ODE, v' and u' from the 6x6 solve, the
 true tip, R re-orthonormalised). Straight tendons ending at the tip only; no point forces.
 
 It is the per-rod peer of ``experiments/bench_dynamics.py`` and, run at the same settings as

@@ -1,8 +1,8 @@
 """Independent reference solver (plain NumPy/SciPy) for the static Cosserat rod with tendons.
 
-Not part of the package and not a test file: a helper for the tests. Written only from
-/work/shared/PHYSICS.md ("Rod", "Tendons, coupled model") and the equations of tendon friction
-and length control below; it shares no code with the Warp solver.
+Not part of the package and not a test file: a helper for the tests. Written only from the
+model's equations (docs/physics.md, sections 1 and 2: the rod and the coupled tendon model) and
+the equations of tendon friction and length control below; it shares no code with the Warp solver.
 
 Conventions
 -----------

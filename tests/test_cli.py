@@ -11,6 +11,7 @@ import warp as wp
 
 import tdcr_warp as tw
 from tdcr_warp.cli import main
+from tdcr_warp.control import METRIC_UNITS
 from tdcr_warp.scene import load_scene
 from scenes import two_tendon_scene
 
@@ -26,11 +27,19 @@ def write(tmp_path, text, name="scene.toml"):
     return p
 
 
+def assert_documented(*groups):
+    """Every key the CLI wrote appears, as `key`, in docs/outputs.md (the documented outputs)."""
+    doc = (ROOT / "docs" / "outputs.md").read_text()
+    missing = sorted({k for keys in groups for k in keys if f"`{k}`" not in doc})
+    assert not missing, f"outputs not documented in docs/outputs.md: {missing}"
+
+
 def test_displacement_example_reports_each_tendon(tmp_path):
     """examples/displacement_pair.toml: tendon 1 pulled 2 mm, its antagonist released 2 mm."""
     out = tmp_path / "out"
     assert main(["static", str(EXAMPLES / "displacement_pair.toml"), "--out", str(out), "--no-figures"]) == 0
     tendons = json.loads((out / "results.json").read_text())["rods"][0]["tendons"]
+    assert_documented(tendons[0], np.load(out / "shapes.npz").files)
     assert [t["slack"] for t in tendons] == [False, False, True, False]
     assert tendons[2]["tension_base"] == 0.0 and tendons[0]["tension_base"] > 5.0
     assert tendons[1]["tension_base"] == pytest.approx(tendons[3]["tension_base"], rel=1e-9)
@@ -53,8 +62,13 @@ def test_static_example_outputs_agree_with_api(tmp_path, capsys):
             "residual"} <= res.keys()
     assert res["scene"] == str(EXAMPLES / "seed_robot.toml")
     settings = res["settings"]
-    for key in ("nodes", "integrator", "model", "precision", "tol", "max_iter", "device", "warp_version"):
+    for key in ("nodes", "integrator", "model", "precision", "tolerance_m", "max_iter", "device", "warp", "tdcr_warp",
+                "scene_text"):
         assert key in settings, key
+    assert "warp_version" not in settings and "tol" not in settings  # the Warp version once; the tolerance used
+    assert settings["warp"] == wp.__version__ and settings["tdcr_warp"] == tw.__version__
+    assert settings["tolerance_m"] == 1e-10  # float64's default (the scene gives no tol)
+    assert settings["scene_text"] == (EXAMPLES / "seed_robot.toml").read_text()
     assert (settings["nodes"], settings["integrator"], settings["model"]) == (50, "rk4", "coupled")
     assert settings["device"] == str(wp.get_device(None))
     assert res["batch_size"] == 1 and res["converged"] == [True]
@@ -69,6 +83,7 @@ def test_static_example_outputs_agree_with_api(tmp_path, capsys):
     assert sorted(p.name for p in out.iterdir()) == ["results.json", "shapes.npz", "shapes.png"]  # no temp files
     shapes = np.load(out / "shapes.npz")
     assert shapes["positions"].shape == (1, 51, 3)
+    assert_documented(res, settings, rod, rod["tendons"][0], shapes.files)
     scene = load_scene(EXAMPLES / "seed_robot.toml")
     sol = tw.solve_static(scene.robot, scene.tensions, options=scene.options)
     assert np.abs(np.array(res["tip_position"]) - sol.tip_position).max() < 1e-15
@@ -108,6 +123,7 @@ def test_simulate_seed_dynamics(tmp_path):
     assert np.abs(traj["tip_position"][4, 0] - traj["tip_position"][0, 0]).max() < 1e-12
     assert traj["tensions"][4, 0, 0] == 3.0 and traj["tensions"][3, 0, 0] == 0.0
     assert res["completed"] == [True] and res["failed_step"] == [None]
+    assert_documented(res, res["settings"], traj.files)
     for name in ("tip_position.png", "tip_rates.png"):
         assert (tmp_path / name).stat().st_size > 1000
 
@@ -206,10 +222,28 @@ def test_control_examples(tmp_path):
         for key in ("final_error", "rms_error", "settling_time", "overshoot", "chatter", "reversal_fraction",
                     "saturation_fraction", "peak_tension", "mean_tension"):
             assert len(res["metrics"][key]) == 1, key
+        assert res["units"] == {k: METRIC_UNITS[k] for k in res["metrics"]} and res["units"]["final_error"] == "m"
+        assert res["settings"]["scene_text"] == (EXAMPLES / f"{name}.toml").read_text()
         run = np.load(out / "control.npz")
         assert run["tensions"].shape == (30, 1, 4)
+        assert_documented(res, res["settings"], res["metrics"], run.files)
         for png in ("control_tip.png", "control_tension.png", "control_error_phase.png"):
             assert (out / png).stat().st_size > 1000
+
+
+def test_version(capsys):
+    with pytest.raises(SystemExit) as e:
+        main(["--version"])
+    assert e.value.code == 0
+    assert capsys.readouterr().out.strip() == f"tdcr-warp {tw.__version__} (Warp {wp.__version__})"
+    assert tw.__version__ != "unknown"
+
+
+def test_status_decoder_is_exported():
+    from tdcr_warp.kernels import layout
+    assert tw.status_names(layout.CONVERGED | layout.UNSTABLE) == ["converged", "unstable equilibrium"]
+    assert tw.describe_status(layout.MAX_ITER | layout.STALLED) == "iteration cap reached, line search stalled"
+    assert tw.describe_status(0) == "not converged"
 
 
 def test_control_table_errors(tmp_path, capsys):
@@ -222,8 +256,12 @@ def test_ik_example_reaches_three_targets_and_reports_the_unreachable_one(tmp_pa
     """examples/ik_targets.toml: three static tips of known tensions and one out of reach."""
     out = tmp_path / "ik"
     assert main(["ik", str(EXAMPLES / "ik_targets.toml"), "--out", str(out)]) == 1
-    rods = json.loads((out / "ik.json").read_text())["rods"]
+    res = json.loads((out / "ik.json").read_text())
+    rods = res["rods"]
     assert [r["reason"] for r in rods] == ["reached"] * 3 + ["unreachable"]
+    assert res["settings"]["scene_text"] == (EXAMPLES / "ik_targets.toml").read_text()
+    assert res["settings"]["tdcr_warp"] == tw.__version__ and "warp_version" not in res["settings"]
+    assert_documented(res, rods[0], np.load(out / "ik.npz").files)
     assert max(r["position_error_m"] for r in rods[:3]) < 1e-9 and rods[3]["position_error_m"] > 0.3
     assert all(0.0 <= c <= 8.0 for r in rods for c in r["command"])
     sc = load_scene(EXAMPLES / "ik_targets.toml")  # the commands put the tips there, by an independent solve
@@ -239,6 +277,7 @@ def test_static_reports_stability_and_sensitivities(tmp_path):
     assert rod["stability_index"] == 0 and rod["stable"]
     assert np.array(rod["tip_jacobian"]).shape == (6, 2) and np.array(rod["tip_compliance"]).shape == (6, 6)
     assert np.load(out / "shapes.npz")["tip_compliance"].shape == (1, 6, 6)
+    assert_documented(rod, np.load(out / "shapes.npz").files)
 
 
 @pytest.mark.parametrize("edit, message", [

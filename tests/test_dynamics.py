@@ -82,6 +82,32 @@ def test_undamped_cantilever_first_natural_frequency():
     assert rel < 0.01, f"f = {1 / period:.4f} Hz vs Euler-Bernoulli {f_eb:.4f} Hz ({rel:.2%})"
 
 
+def test_numerical_damping_is_largest_at_alpha_zero():
+    """BDF-alpha's own damping of an undamped oscillation: per period of the first bending mode
+    at omega dt = 0.5 (12.6 steps a period), alpha = 0 (BDF2) damps most and alpha -> -0.5
+    (the trapezoidal rule) least. Each ratio equals that of the scheme on y' = i omega y, the
+    principal root z of (c0 dt - i h) z^2 + (c1 dt + d1 i h) z + c2 dt = 0 raised to the steps of
+    one numerical period, 2 pi / arg z."""
+    w1 = 1.8751**2 * np.sqrt(EI / (RHO_A * L**4))  # Euler-Bernoulli's first mode [rad/s]
+    h = 0.5
+    dt = h / w1
+    measured = {}
+    for alpha in (0.0, -0.2, -0.45):
+        tr = _release(nodes=10, dt=dt, steps=int(5 * 2 * np.pi / h), alpha=alpha)
+        assert tr.converged.all()
+        x = tr.tip_position[:, 0, 0]
+        i = np.flatnonzero((x[1:-1] >= x[:-2]) & (x[1:-1] > x[2:])) + 1  # the maxima, sharpened by a parabola
+        peaks = x[i] - (x[i - 1] - x[i + 1]) ** 2 / (8 * (x[i - 1] - 2 * x[i] + x[i + 1]))
+        assert len(peaks) >= 4
+        measured[alpha] = (peaks[-1] / peaks[0]) ** (1 / (len(peaks) - 1))  # from the first peak: past the start-up
+        c0, c1, c2, d1 = bdf_alpha_coefficients(1.0, alpha)
+        z = np.roots([c0 - 1j * h, c1 + d1 * 1j * h, c2])
+        z = z[np.argmin(np.abs(z - np.exp(1j * h)))]
+        theory = abs(z) ** (2 * np.pi / np.angle(z))  # 0.878, 0.932, 0.991
+        assert abs(measured[alpha] - theory) < 5e-3, (alpha, measured[alpha], theory)
+    assert measured[0.0] < measured[-0.2] < measured[-0.45] < 1.0, measured
+
+
 def _tip_history(dt, T, alpha, nodes=20, bbt=0.008):
     """Tip over [0, T] under a smooth tension ramp 3 sin^2(pi t / T) N (flat at t = 0: a step
     input has a jump in acceleration that limits any start-up to first order)."""

@@ -4,6 +4,7 @@ synthetic measurements (tips of this simulator plus noise) from a wrong start.""
 
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -93,6 +94,11 @@ def test_predict_cli_writes_one_row_per_input_and_the_metrics(tmp_path):
     assert m["rows"] == 12 and m["converged"] == 12 and m["rmse_mm"] < 0.2 and m["rmse_aligned_mm"] <= m["rmse_mm"]
     for key in ("median_mm", "p95_mm", "rmse_percent_of_length", "ms_per_row"):
         assert key in m
+    assert m["units"]["rmse_mm"] == "mm" and m["settings"]["scene_text"] == scene.read_text()
+    doc = (Path(__file__).resolve().parents[1] / "docs" / "outputs.md").read_text()
+    header = (out / "predictions.csv").read_text().splitlines()[0].split(",")
+    assert [k for k in [*m, *m["units"], *(c for c in header if not c.startswith("slack_"))]
+            if f"`{k}`" not in doc] == []  # documented (docs/outputs.md)
     lines = (out / "predictions.csv").read_text().splitlines()
     assert len(lines) == 13 and lines[0].startswith("row,source,pattern_label,pred_x_mm")
     assert (out / "predict.png").exists()
@@ -151,6 +157,10 @@ def test_fit_cli_writes_a_scene_that_predict_reads(tmp_path):
     assert main(["fit", str(scene), str(csv), "--out", str(out), "--max-iter", "4", "--quiet"]) == 0
     rep = json.loads((out / "fit.json").read_text())
     assert set(rep["parameters"]) >= {"compliance[1]", "pretension[0]", "angle[5]", "base_offset[2]"}
+    assert rep["settings"]["scene_text"] == scene.read_text()
+    doc = (Path(__file__).resolve().parents[1] / "docs" / "outputs.md").read_text()
+    assert [k for k in [*rep, *rep["history"][0], *rep["history"][-1], *rep["training"]]
+            if f"`{k}`" not in doc] == []  # documented
     assert main(["predict", str(out / "fitted.toml"), str(csv), "--out", str(tmp_path / "p")]) == 0
     m = json.loads((tmp_path / "p" / "metrics.json").read_text())
     assert m["rmse_mm"] == pytest.approx(rep["training"]["rmse_mm"], rel=1e-6)

@@ -54,7 +54,7 @@ COMMANDS = {
 SOLVE = {"static": "tdcr_warp.statics.solve_static", "simulate": "tdcr_warp.dynamics.Simulator.simulate",
          "control": "tdcr_warp.control.run_closed_loop", "ik": "tdcr_warp.ik.solve_ik",
          "predict": "tdcr_warp.hardware.predict", "fit": "tdcr_warp.hardware.fit"}
-FIGURES = {"static": "plot_shapes", "simulate": "plot_tip_history", "control": "plot_control",
+FIGURES = {"static": "plot_robot", "simulate": "plot_tip_history", "control": "plot_control",
            "predict": "plot_prediction"}
 PHASES = ([(c, "scene", "tdcr_warp.scene.scene_from_dict") for c in COMMANDS]
           + [(c, "kernels", "tdcr_warp.solver.load_kernels") for c in ("static", "simulate", "ik", "predict")]
@@ -129,7 +129,7 @@ def test_sigint_during_simulate(tmp_path, signals):
             f"from tdcr_warp.cli import main; sys.exit(main({argv!r}))")
     proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     err, deadline = b"", time.monotonic() + 60
-    while b" steps " not in err and proc.poll() is None and time.monotonic() < deadline:
+    while b"rod-steps" not in err and proc.poll() is None and time.monotonic() < deadline:
         err += proc.stderr.read1(4096)  # the progress bar: the steps have begun
     for _ in range(signals):
         proc.send_signal(signal.SIGINT)

@@ -21,6 +21,20 @@ ROOT = Path(__file__).resolve().parents[1]
 
 BASE = two_tendon_scene("[[1.0, 0.5]]", nodes=16)
 
+
+def assert_documented(*groups):
+    """Every key and column a sweep wrote appears in docs/outputs.md (a vector column
+    ``name[i]`` as `name` or `name[...]`, a sample column as `sample:<field>`)."""
+    doc = (ROOT / "docs" / "outputs.md").read_text()
+
+    def base(k):
+        return "sample:<field>" if k.startswith("sample:") else k.split("[")[0]
+
+    missing = sorted({k for keys in groups for k in keys
+                      if f"`{base(k)}`" not in doc and f"`{base(k)}[" not in doc})
+    assert not missing, f"outputs not documented in docs/outputs.md: {missing}"
+
+
 GRID = BASE + """
 [sweep]
 chunk = 7
@@ -91,6 +105,9 @@ def test_montecarlo_with_zero_variance_equals_nominal(tmp_path):
     assert np.abs(np.array(summary["tip_mean"]) - nominal).max() < 1e-12
     assert summary["tip_error_percentiles_m"]["99"] < 1e-12
     assert (tmp_path / "o" / "montecarlo.png").exists()
+    manifest = json.loads((tmp_path / "o" / "sweep.json").read_text())
+    assert_documented(summary, summary["linearised"], manifest, open_sweep(tmp_path / "o").load())
+    assert summary["settings"]["scene_text"] == scene.read_text()
 
 
 def test_workspace_of_a_single_tendon_lies_in_its_plane(tmp_path):
@@ -110,6 +127,7 @@ chunk = 8
     assert (res["tip_position"][1:, 0] > 0).all()
     summary = json.loads((tmp_path / "o" / "summary.json").read_text())
     assert summary["rods"] == 21 and summary["peak_memory_mb"] > 0
+    assert_documented(summary, summary["boundary_slices"][0], res)
 
 
 def test_constant_curvature_matches_coupled_single_tendon_without_load():
@@ -130,6 +148,7 @@ def test_gain_grid_pipeline(tmp_path):
     assert summary["rods"] == 4 and set(summary["best"]["gains"]) == {"control.gain_c[0]", "control.gain_k[0]"}
     assert len(summary["pareto"]) >= 1
     assert (tmp_path / "o" / "gain_grid.png").exists()
+    assert_documented(summary, summary["best"], summary["pareto"][0], open_sweep(tmp_path / "o").load())
 
 
 def test_helpers():

@@ -1,0 +1,143 @@
+"""The robot as roboticists draw it: the backbone, its spacer disks, every tendon's path through
+the disks with its tension, the base and tip frames. One geometry, used by the figures
+(:mod:`tdcr_warp.plotting`), the animations and the HTML viewer (:mod:`tdcr_warp.viewer`).
+
+Disks are drawn, not modelled: the rod's physics is continuous (the coupled model routes each
+tendon along its path r(s) in the body frame). The ``[display]`` table of a scene sets how many
+disks to draw and their radius:
+
+    [display]
+    disks = 20          # evenly spaced along the rod, the last at the tip (default 20)
+    disk_radius = 0.012 # [m] (default 1.25 x the largest tendon offset, at least 2 x the rod radius)
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .robot import InputError, Robot
+
+__all__ = ["DISPLAY_KEYS", "RobotGeometry", "display_options", "robot_geometry"]
+
+DISPLAY_KEYS = {"disks", "disk_radius"}
+DEFAULT_DISKS = 20
+
+
+def display_options(table: dict | None) -> dict:
+    """The checked ``[display]`` table: {"disks": int >= 0, "disk_radius": float > 0 or None}."""
+    if table is not None and not isinstance(table, dict):
+        raise InputError(f"[display] must be a table (disks, disk_radius), got {table!r}")
+    t = dict(table or {})
+    unknown = set(t) - DISPLAY_KEYS
+    if unknown:
+        raise InputError(f"unknown key {sorted(unknown)[0]!r} in [display] (known: {', '.join(sorted(DISPLAY_KEYS))})")
+    disks = t.get("disks", DEFAULT_DISKS)
+    if not isinstance(disks, int) or isinstance(disks, bool) or not 0 <= disks <= 1000:
+        raise InputError(f"[display].disks must be an integer in [0, 1000], got {disks!r}")
+    radius = t.get("disk_radius")
+    if radius is not None and (isinstance(radius, bool) or not isinstance(radius, (int, float)) or not radius > 0
+                               or not np.isfinite(radius)):
+        raise InputError(f"[display].disk_radius must be a positive number [m], got {radius!r}")
+    return {"disks": disks, "disk_radius": None if radius is None else float(radius)}
+
+
+@dataclass
+class RobotGeometry:
+    """What to draw of B rods, in the world frame [m].
+
+    s (B, N+1) and backbone (B, N+1, 3): the nodes; disk_s (B, D), disk_centres (B, D, 3),
+    disk_frames (B, D, 3, 3) (columns: the body axes d1, d2, d3 = the backbone's tangent
+    frame), disk_radius; tendon_s[k] (B, P_k) and tendon_points[k] (B, P_k, 3): tendon k from
+    the base through every disk it passes to its end; tension (B, K) [N] at the base;
+    tip_position (B, 3), tip_rotation (B, 3, 3)."""
+
+    s: np.ndarray
+    backbone: np.ndarray
+    disk_s: np.ndarray
+    disk_centres: np.ndarray
+    disk_frames: np.ndarray
+    disk_radius: float
+    tendon_s: list
+    tendon_points: list
+    tension: np.ndarray
+    tip_position: np.ndarray
+    tip_rotation: np.ndarray
+
+    @property
+    def rods(self) -> int:
+        return self.backbone.shape[0]
+
+    def disk_rims(self, points: int = 24) -> np.ndarray:
+        """The disks' rims (B, D, points + 1, 3), closed."""
+        a = np.linspace(0.0, 2 * np.pi, points + 1)
+        ring = np.stack([np.cos(a), np.sin(a), np.zeros_like(a)], axis=-1) * self.disk_radius  # body frame
+        return self.disk_centres[:, :, None] + np.einsum("bdij,pj->bdpi", self.disk_frames, ring)
+
+
+def _at(s_nodes: np.ndarray, values: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """values (N+1, ...) at the nodes s_nodes (N+1,), linearly interpolated at s (P,)."""
+    i = np.clip(np.searchsorted(s_nodes, s, side="right") - 1, 0, len(s_nodes) - 2)
+    w = ((s - s_nodes[i]) / np.maximum(s_nodes[i + 1] - s_nodes[i], 1e-300)).reshape((-1,) + (1,) * (values.ndim - 1))
+    return (1 - w) * values[i] + w * values[i + 1]
+
+
+def _first(a: np.ndarray, B: int) -> np.ndarray:
+    """Rows 0..B-1 of a per-rod table (1 or >= B rows)."""
+    return np.broadcast_to(a, (B,) + a.shape[1:]) if a.shape[0] == 1 else a[:B]
+
+
+def _orthonormal(R: np.ndarray) -> np.ndarray:
+    """The nearest rotations of interpolated frames (..., 3, 3) (polar decomposition)."""
+    u, _, vt = np.linalg.svd(R)
+    return u @ vt
+
+
+def robot_geometry(robot: Robot, positions: np.ndarray, rotations: np.ndarray, s: np.ndarray, tensions,
+                   display: dict | None = None) -> RobotGeometry:
+    """The drawing of B solved rods: ``positions`` (B, N+1, 3) [m], ``rotations`` (B, N+1, 3, 3)
+    and arc lengths ``s`` (B, N+1) or (N+1,) of the nodes (a StaticSolution's, or one step of a
+    trajectory), ``tensions`` (B, K) [N]; ``display``: the [display] options (display_options).
+    ``robot`` may hold more rods than B (a batch's first B are drawn)."""
+    opts = display_options(display)
+    P, R = np.asarray(positions, dtype=np.float64), np.asarray(rotations, dtype=np.float64)
+    B = P.shape[0]
+    S = np.broadcast_to(np.asarray(s, dtype=np.float64), P.shape[:2])
+    K = robot.n_tendons
+    tau = np.broadcast_to(np.asarray(tensions, dtype=np.float64), (B, K))
+    lengths = _first(robot.tendon_lengths(), B) if K else np.zeros((B, 0))
+    per_rod = robot.routing_parameters()[0].shape[0]  # 1, or the robot's batch (>= B)
+
+    def route(sv: np.ndarray) -> np.ndarray:
+        """Body-frame routing (B, K, 3) of rods 0..B-1, tendon k at arc length sv[:, k] (B, K)."""
+        full = np.zeros((max(per_rod, B), K))
+        full[:B] = sv
+        return robot.tendon_routing(full if per_rod > 1 else full[:B])[0][:B]
+    offsets = [np.max(np.linalg.norm(t.offset, axis=-1)) for t in robot.tendons]
+    radius = opts["disk_radius"] or max(1.25 * max(offsets, default=0.0), 2.0 * float(np.max(robot.radius)))
+    D = opts["disks"]
+    disk_s = S[:, -1:] * np.arange(1, D + 1)[None] / max(D, 1)
+    centres = np.stack([_at(S[b], P[b], disk_s[b]) for b in range(B)]) if D else np.zeros((B, 0, 3))
+    frames = _orthonormal(np.stack([_at(S[b], R[b], disk_s[b]) for b in range(B)])) if D else np.zeros((B, 0, 3, 3))
+    # the candidate points of every tendon: the base, every disk, its end; the body-frame routing
+    # of all tendons at them in D + 2 calls (each rod with its own routing parameters)
+    cand = np.concatenate([np.zeros((B, 1)), disk_s], axis=1)  # (B, D + 1)
+    r_all = np.stack([route(np.repeat(cand[:, j:j + 1], K, axis=1)) for j in range(D + 1)] + [route(lengths)],
+                     axis=1) if K else None  # (B, D + 2, K, 3)
+    tendon_s, tendon_points = [], []
+    for k in range(K):
+        sk = np.concatenate([cand, lengths[:, k:k + 1]], axis=1)  # (B, D + 2)
+        keep = np.concatenate([sk[:, :-1] < lengths[:, k:k + 1] - 1e-12, np.ones((B, 1), dtype=bool)], axis=1)
+        r = r_all[:, :, k]  # (B, D + 2, 3)
+        pts_s, pts = [], []
+        for b in range(B):
+            sb = sk[b, keep[b]]
+            pts_s.append(sb)
+            pts.append(_at(S[b], P[b], sb) + np.einsum("pij,pj->pi", _orthonormal(_at(S[b], R[b], sb)), r[b, keep[b]]))
+        width = max(len(x) for x in pts_s)  # rods of one batch may end a tendon at different disks
+        tendon_s.append(np.stack([np.pad(x, (0, width - len(x)), mode="edge") for x in pts_s]))
+        tendon_points.append(np.stack([np.pad(x, ((0, width - len(x)), (0, 0)), mode="edge") for x in pts]))
+    return RobotGeometry(s=S, backbone=P, disk_s=disk_s, disk_centres=centres, disk_frames=frames,
+                         disk_radius=radius, tendon_s=tendon_s, tendon_points=tendon_points, tension=tau.copy(),
+                         tip_position=P[:, -1], tip_rotation=R[:, -1])

@@ -1,0 +1,109 @@
+"""The robot figure and animation: disks where the scene puts them, tendons through the disks at
+their offsets, tensions as colours, frames, equal axes, and what the CLI writes."""
+
+import tomllib
+
+import numpy as np
+import pytest
+
+import tdcr_warp as tw
+from tdcr_warp.cli import main
+from tdcr_warp.drawing import display_options, robot_geometry
+from tdcr_warp.plotting import animate_robot, plot_robot
+from tdcr_warp.robot import InputError
+from tdcr_warp.scene import scene_from_dict
+from scenes import two_tendon_scene
+
+
+@pytest.fixture(scope="module")
+def solved():
+    """Two rods of a two-tendon robot with gravity, bent by different tensions."""
+    sc = scene_from_dict(tomllib.loads(two_tendon_scene("[[2.0, 0.5], [0.0, 1.5]]", nodes=16)
+                                       + "[display]\ndisks = 8\n"))
+    sol = tw.solve_static(sc.robot, sc.tensions, options=sc.options)
+    return sc, sol, robot_geometry(sc.robot, sol.positions, sol.rotations, sol.s, sol.tendon_tension_base, sc.display)
+
+
+def test_disks_and_tendon_paths_follow_the_solved_rod(solved):
+    sc, sol, g = solved
+    assert g.disk_centres.shape == (2, 8, 3) and np.allclose(g.disk_s[:, -1], 0.5)
+    assert np.allclose(g.disk_centres[:, -1], sol.tip_position, atol=1e-12)  # the last disk is at the tip
+    for k, t in enumerate(sc.robot.tendons):
+        pts = g.tendon_points[k]
+        assert pts.shape == (2, 9, 3)  # the base and 8 disks, the last at the tip where the tendon ends
+        rel = pts[:, 1:] - g.disk_centres
+        assert np.allclose(np.linalg.norm(rel, axis=-1), np.linalg.norm(t.offset), rtol=1e-9)
+        assert np.abs(np.einsum("bdi,bdi->bd", rel, g.disk_frames[..., 2])).max() < 1e-12  # in the disk's plane
+    assert np.allclose(g.tension, sol.tendon_tension_base)
+    for R in g.disk_frames.reshape(-1, 3, 3):
+        assert np.allclose(R.T @ R, np.eye(3), atol=1e-12)
+
+
+def test_robot_figure_draws_every_part_on_equal_axes(solved):
+    _, sol, g = solved
+    fig = plot_robot(g, converged=sol.converged)
+    ax3, side, top = fig.axes[:3]
+
+    def count(ax, gid):
+        return sum(1 for ln in ax.lines if ln.get_gid() == gid)
+    for ax in (ax3, side, top):
+        assert count(ax, "backbone") == 2 and count(ax, "disk") == 2 * 8
+        assert count(ax, "tendon") == 2 * 2 and count(ax, "frame") == 2 * 2 * 3
+    widths = [np.diff(lim)[0] for lim in (ax3.get_xlim(), ax3.get_ylim(), ax3.get_zlim())]
+    assert np.allclose(widths, widths[0])
+    for ax in (side, top):
+        assert ax.get_aspect() == 1.0 and np.isclose(np.diff(ax.get_xlim())[0], np.diff(ax.get_ylim())[0])
+    assert [t.get_text() for t in side.get_legend().get_texts()] == ["rod 0", "rod 1"]
+    tendons = [ln for ln in ax3.lines if ln.get_gid() == "tendon"]
+    # one colour scale from 0 to the largest tension (2 N), in drawing order: rod 0's tendons, rod 1's
+    import matplotlib.pyplot as plt
+    want = [plt.get_cmap("plasma")(t / 2.0)[:3] for t in sol.tendon_tension_base.ravel()]
+    assert np.allclose([matplotlib_rgb(ln.get_color()) for ln in tendons], want)
+    assert len({matplotlib_rgb(ln.get_color()) for ln in tendons}) == 4
+    assert "tendon tensions [N] 0: 2.00, 1: 0.50" in ax3.get_title()
+    assert fig.axes[-1].get_ylabel() == "tendon tension [N]"
+
+
+def matplotlib_rgb(c):
+    from matplotlib.colors import to_rgb
+    return to_rgb(c)
+
+
+def test_animation_has_one_frame_per_stored_shape(solved, tmp_path):
+    from PIL import Image
+    sc, sol, g = solved
+    assert animate_robot([g] * 3, np.linspace(0, 0.02, 3), tmp_path / "a.gif") == 3
+    with Image.open(tmp_path / "a.gif") as im:
+        assert im.n_frames == 3
+    assert animate_robot([g] * 300, np.arange(300) * 1e-3, tmp_path / "b.gif", max_frames=4) == 4
+
+
+@pytest.mark.parametrize("table,message", [({"disks": -1}, "disks"), ({"disks": 2.5}, "disks"),
+                                           ({"disk_radius": 0}, "disk_radius"), ({"colour": 1}, "'colour'")])
+def test_display_table_is_checked(table, message):
+    with pytest.raises(InputError, match=message):
+        display_options(table)
+
+
+def test_cli_animation_needs_stored_shapes(tmp_path, capsys):
+    text = two_tendon_scene("[[0.0, 0.0]]", nodes=10) + """
+[dynamics]
+dt = 0.005
+steps = 6
+damping_bending = [0.008, 0.008, 0.008]
+[[actuation.steps]]
+start = 1
+tensions = [[2.0, 0.0]]
+"""
+    scene = tmp_path / "d.toml"
+    scene.write_text(text)
+    out = tmp_path / "o"
+    assert main(["simulate", str(scene), "--out", str(out), "--quiet", "--animate"]) == 2
+    assert "[dynamics].shapes_every" in capsys.readouterr().err
+    scene.write_text(text.replace("steps = 6", "steps = 6\nshapes_every = 2"))
+    assert main(["simulate", str(scene), "--out", str(out), "--quiet", "--animate", "--no-figures"]) == 0
+    from PIL import Image
+    with Image.open(out / "robot.gif") as im:
+        assert im.n_frames == 4  # steps 0, 2, 4, 6
+    traj = np.load(out / "trajectory.npz")
+    assert traj["rotations"].shape == (4, 1, 11, 3, 3)
