@@ -107,3 +107,43 @@ tensions = [[2.0, 0.0]]
         assert im.n_frames == 4  # steps 0, 2, 4, 6
     traj = np.load(out / "trajectory.npz")
     assert traj["rotations"].shape == (4, 1, 11, 3, 3)
+
+
+@pytest.fixture
+def captured(monkeypatch):
+    """The figures the plotting functions save, by file name (not written)."""
+    import tdcr_warp.plotting as plotting
+    figs = {}
+    monkeypatch.setattr(plotting, "_save", lambda fig, path: figs.__setitem__(path.name, fig))
+    return figs
+
+
+def test_control_figures_show_the_limit_the_surface_and_time(captured, tmp_path):
+    from tdcr_warp.control import ControlRun
+    from tdcr_warp.plotting import plot_control
+    T, t = 50, np.linspace(0, 0.25, 51)
+    x = 0.01 * np.exp(-20 * t)[:, None, None] * np.ones((1, 1, 3))
+    run = ControlRun(time=t, tip_position=x, tip_velocity=np.gradient(x, t, axis=0), error=-x, sliding=np.zeros_like(x),
+                     tensions=np.full((T, 1, 2), 1.5), converged=np.ones((T, 1), bool), target=np.zeros((1, 3)))
+    plot_control(run, tmp_path, tension_max=np.full((1, 2), 4.0), gain_c=np.full((1, 3), 20.0))
+    ax = captured["control_tension.png"].axes[0]
+    assert any(np.allclose(ln.get_ydata(), 4.0) and ln.get_label() == "tension limit" for ln in ax.lines)
+    err, phase, surface = captured["control_error_phase.png"].axes
+    assert all(a.get_title() for a in (err, phase, surface))
+    line = next(ln for ln in surface.lines if ln.get_label().startswith("S = e_t + C e = 0"))
+    (e0, e1), (v0, v1) = line.get_xdata(), line.get_ydata()
+    assert np.isclose((v1 - v0) / ((e1 - e0) / 1e3), -20.0)  # e_t = -C e, e in mm
+    assert len([c for c in surface.get_children() if type(c).__name__ == "Annotation"]) == 3  # time's arrows
+
+
+def test_workspace_side_view_spans_its_data(captured, tmp_path):
+    from tdcr_warp.plotting import plot_workspace
+    rng = np.random.default_rng(0)
+    tips = np.c_[rng.uniform(-0.06, 0.06, (500, 2)), 0.497 + 0.003 * rng.random(500)]
+    plot_workspace(tips, rng.random(500), tips + 1e-4, [], tmp_path)
+    fig = captured["workspace.png"]
+    side = next(a for a in fig.axes if a.get_title().startswith("side"))
+    lo, hi = side.get_ylim()
+    assert hi - lo < 0.004  # the 3 mm of z, not the 120 mm of x
+    top = next(a for a in fig.axes if a.get_title().startswith("top"))
+    assert top.get_aspect() == 1.0
