@@ -301,6 +301,7 @@ def cmd_control(args) -> int:
     from .dynamics import Simulator
     from .plotting import plot_control
     from .scene import load_scene
+    from .tippath import path_from_table
 
     scene = _apply_overrides(load_scene(args.scene), args)
     spec, ctl = scene.dynamics, scene.control
@@ -312,6 +313,8 @@ def cmd_control(args) -> int:
     t0 = time.perf_counter()
     if "target_tensions" in ctl:
         target = static_target(scene.robot, ctl["target_tensions"], options=scene.options, device=args.device)
+    elif "path" in ctl:
+        target = path_from_table(ctl["path"])
     else:
         target = ctl["target"]
     sim = Simulator(scene.robot, scene.tensions, dt=spec.dt, alpha=spec.alpha, options=scene.options,

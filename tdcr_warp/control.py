@@ -28,6 +28,7 @@ from .dynamics import Simulator
 from .progress import Progress
 from .robot import InputError, Robot, real_array, require_memory
 from .statics import solve_static
+from .tippath import TipPath
 from .types import StaticOptions
 
 __all__ = ["ControlRun", "TipController", "allocate", "control_metrics", "run_closed_loop", "sliding_command",
@@ -88,7 +89,9 @@ def sliding_command(e: np.ndarray, e_t: np.ndarray, ac: np.ndarray, *, C: np.nda
 class TipController:
     """Sliding-mode tip controller for the B rods of a :class:`Simulator`.
 
-    target (3,) or (B, 3) [m]; gain_c, gain_k: diagonals (3,) or (B, 3) [1/s]; epsilon [m/s^2]
+    target (3,) or (B, 3) [m], or a :class:`~tdcr_warp.tippath.TipPath` (a desired trajectory:
+    its velocity and acceleration enter the sliding surface and the law); gain_c, gain_k:
+    diagonals (3,) or (B, 3) [1/s]; epsilon [m/s^2]
     and phi [m/s] (boundary layer): float or (B,); tension_max [N]: float, (K,) or (B, K).
     method "smc" | "boundary_layer"; input_model "jacobian" | "alpha". model_robot: the robot
     the controller believes in (its statics, frequency and damping), default the simulated one;
@@ -106,7 +109,8 @@ class TipController:
         if K == 0:
             raise InputError("control needs at least one tendon")
         self.sim, self.method, self.input_model = sim, method, input_model
-        self.target = per_rod("target", target, B, (3,))
+        self.path = target if isinstance(target, TipPath) else TipPath.constant(per_rod("target", target, B, (3,)))
+        self.target = self.desired(sim.steps_done * sim.dt)[0]  # where the path starts (B, 3)
         self.C = per_rod("gain_c", gain_c, B, (3,))
         self.k = per_rod("gain_k", gain_k, B, (3,))
         self.eps = per_rod("epsilon", epsilon, B, ())
@@ -137,6 +141,15 @@ class TipController:
         self.static_opts = StaticOptions(nodes=sim.opts.nodes, integrator=sim.opts.integrator,
                                          model=sim.opts.model, precision=sim.opts.precision, threads=sim.opts.threads,
                                          sensitivities=True)
+
+    def desired(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The desired tip position, velocity and acceleration (B, 3) at time t [s]."""
+        B = self.sim.B
+        try:
+            return tuple(np.broadcast_to(a, (B, 3)) for a in self.path(t))
+        except ValueError:
+            raise InputError(f"tip path: expected (3,) or ({B}, 3) per quantity for {B} rods, got "
+                             f"{[np.shape(a) for a in self.path(t)]}") from None
 
     def _linearise(self, tau: np.ndarray) -> None:
         """p_s(tau) and J = d p_s / d tau: one batched static solve with its tip Jacobian
@@ -191,9 +204,11 @@ class TipController:
     def __call__(self) -> np.ndarray:
         """Tensions (B, K) [N] for the next step, from the simulator's current tip state."""
         ac, bc = self.plant()
-        e = self.target - self.sim.tip_position
-        e_t = -self.sim.tip_velocity  # constant target
-        _, v = sliding_command(e, e_t, ac, C=self.C, k=self.k, eps=self.eps, phi=self.phi, method=self.method)
+        p_d, v_d, a_d = self.desired(self.sim.steps_done * self.sim.dt)
+        e = p_d - self.sim.tip_position
+        e_t = v_d - self.sim.tip_velocity
+        _, v = sliding_command(e, e_t, ac, C=self.C, k=self.k, eps=self.eps, phi=self.phi, method=self.method,
+                               xdd_d=a_d)
         self.tau = allocate(bc, v, self.tau_max, self.tau)
         self.steps += 1
         return self.tau
@@ -201,8 +216,9 @@ class TipController:
 
 @dataclass
 class ControlRun:
-    """Closed-loop record: time (T+1,), tip_position, tip_velocity, error (T+1, B, 3) [m, m/s, m],
-    sliding (T+1, B, 3) [m/s], tensions (T, B, K) [N], converged (T, B), target (B, 3);
+    """Closed-loop record: time (T+1,), tip_position, tip_velocity, error = desired - tip_position
+    (T+1, B, 3) [m, m/s, m], sliding (T+1, B, 3) [m/s], tensions (T, B, K) [N], converged (T, B),
+    target (B, 3) (where the desired path starts), desired (T+1, B, 3) [m] (the desired tip);
     shape_steps (S,), positions (S, B, N+1, 3) [m] and rotations (S, B, N+1, 3, 3): the shapes
     every ``shapes_every`` steps (empty if 0)."""
 
@@ -214,6 +230,7 @@ class ControlRun:
     tensions: np.ndarray
     converged: np.ndarray
     target: np.ndarray
+    desired: np.ndarray = field(default_factory=lambda: np.zeros((0, 0, 3)))
     shape_steps: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int32))
     positions: np.ndarray = field(default_factory=lambda: np.zeros((0, 0, 0, 3)))
     rotations: np.ndarray = field(default_factory=lambda: np.zeros((0, 0, 0, 3, 3)))
@@ -236,15 +253,21 @@ def run_closed_loop(sim: Simulator, controller: TipController, steps: int, *, pr
     S = np.zeros((steps + 1, B, 3))
     taus = np.zeros((steps, B, K))
     conv = np.zeros((steps, B), dtype=bool)
+    desired = np.zeros((steps + 1, B, 3))
     tip[0], vel[0] = sim.tip_position, sim.tip_velocity
-    S[0] = -sim.tip_velocity + controller.C * (controller.target - sim.tip_position)
+    t0 = sim.steps_done * sim.dt
+    p_d, v_d, _ = controller.desired(t0)
+    desired[0] = p_d
+    S[0] = (v_d - vel[0]) + controller.C * (p_d - tip[0])
     shape_steps, shapes = ([0], [sim.shapes()]) if shapes_every else ([], [])
     bar = Progress(steps, B) if progress is True else None
     for i in range(steps):
         taus[i] = controller()
         r = sim.step(taus[i])
         tip[i + 1], vel[i + 1], conv[i] = r.tip_position, r.tip_velocity, r.converged
-        S[i + 1] = -vel[i + 1] + controller.C * (controller.target - tip[i + 1])
+        p_d, v_d, _ = controller.desired(t0 + (i + 1) * sim.dt)
+        desired[i + 1] = p_d
+        S[i + 1] = (v_d - vel[i + 1]) + controller.C * (p_d - tip[i + 1])
         if shapes_every and (i + 1) % shapes_every == 0:
             shape_steps.append(i + 1)
             shapes.append(sim.shapes())
@@ -255,8 +278,8 @@ def run_closed_loop(sim: Simulator, controller: TipController, steps: int, *, pr
     if bar:
         bar.close()
     return ControlRun(time=sim.dt * np.arange(steps + 1), tip_position=tip, tip_velocity=vel,
-                      error=controller.target[None] - tip, sliding=S, tensions=taus, converged=conv,
-                      target=controller.target.copy(), shape_steps=np.array(shape_steps, dtype=np.int32),
+                      error=desired - tip, sliding=S, tensions=taus, converged=conv,
+                      target=controller.target.copy(), desired=desired, shape_steps=np.array(shape_steps, dtype=np.int32),
                       positions=np.array([p for p, _ in shapes]) if shapes else np.zeros((0, B, n1, 3)),
                       rotations=np.array([R for _, R in shapes]) if shapes else np.zeros((0, B, n1, 3, 3)))
 
@@ -268,7 +291,10 @@ def control_metrics(run: ControlRun, tension_max: np.ndarray, band: float = 5e-4
     the run, the switching part of the tension history while holding (a smooth ramp scores ~0);
     the fraction of steps where a tension
     reverses direction; and the mean |tau(k) - tau(k-1)| [N]), saturation fraction, peak and
-    mean tension [N]."""
+    mean tension [N]; for tracking, the largest error over the second half of the run
+    ``max_error`` [m] and the ``lag`` [s]: the delay of the desired path (a whole number of steps,
+    at most a quarter of the run) that best matches the tip over the second half (0 for a fixed
+    target)."""
     err = np.linalg.norm(run.error, axis=2)  # (T+1, B)
     T = err.shape[0] - 1
     outside = err > band
@@ -284,13 +310,20 @@ def control_metrics(run: ControlRun, tension_max: np.ndarray, band: float = 5e-4
     flips = (np.sign(dtau[1:]) * np.sign(dtau[:-1]) < 0).any(axis=2).mean(axis=0) if T > 2 else np.zeros(err.shape[1])
     tmax = np.broadcast_to(tension_max, run.tensions.shape[1:])
     sat = ((run.tensions <= 0.0) | (run.tensions >= tmax[None] * (1 - 1e-12))).mean(axis=(0, 2))
-    return {"final_error": err[-1], "rms_error": np.sqrt((err[1:] ** 2).mean(axis=0)), "settling_time": settle,
+    half = slice(T // 2, None)
+    desired = run.tip_position + run.error
+    shifts = range(0, max(1, T // 4) + 1)
+    miss = np.stack([((desired[T // 2 - k:T + 1 - k] - run.tip_position[half]) ** 2).sum(axis=2).mean(axis=0)
+                     for k in shifts])  # (shifts, B)
+    lag = np.argmin(miss, axis=0) * (run.time[1] - run.time[0] if T else 0.0)
+    return {"final_error": err[-1], "rms_error": np.sqrt((err[1:] ** 2).mean(axis=0)),
+            "max_error": err[half].max(axis=0), "lag": lag, "settling_time": settle,
             "overshoot": overshoot, "chatter": chatter, "reversal_fraction": flips, "tension_rate": rate, "saturation_fraction": sat,
             "peak_tension": run.tensions.max(axis=(0, 2)), "mean_tension": run.tensions.mean(axis=0)}
 
 
 # The unit of each control_metrics entry ("1": a fraction of the steps; tension_rate is per step).
-METRIC_UNITS = {"final_error": "m", "rms_error": "m", "settling_time": "s", "overshoot": "m", "chatter": "N",
+METRIC_UNITS = {"final_error": "m", "rms_error": "m", "max_error": "m", "lag": "s", "settling_time": "s", "overshoot": "m", "chatter": "N",
                 "reversal_fraction": "1", "tension_rate": "N", "saturation_fraction": "1", "peak_tension": "N",
                 "mean_tension": "N"}
 

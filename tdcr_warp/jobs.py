@@ -16,6 +16,7 @@ from .dynamics import Simulator
 from .robot import InputError
 from .scene import Scene, scene_from_dict
 from .statics import solve_static
+from .tippath import path_from_table
 
 __all__ = ["SweepJob", "constant_curvature_tip", "control_job", "convex_hull_2d", "failure_counts", "pareto_front",
            "static_job", "summarize_gain_grid", "summarize_montecarlo", "summarize_workspace"]
@@ -56,6 +57,8 @@ def control_job(scene: Scene, nominal: Scene | None = None, device=None, progres
         tt = np.broadcast_to(np.array(ctl["target_tensions"], float), (B, scene.robot.n_tendons))
         target = solve_static(model if nominal is None else _tiled(nominal, B), tt, options=scene.options,
                               device=device).tip_position
+    elif "path" in ctl:
+        target = path_from_table(ctl["path"])
     else:
         target = ctl["target"]
     kw = {k: ctl[k] for k in ("method", "input_model", "gain_c", "gain_k", "epsilon", "phi", "tension_max",

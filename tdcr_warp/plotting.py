@@ -206,14 +206,22 @@ def plot_control(run, out_dir: Path, tension_max=None, gain_c=None) -> None:
     S = e_t + C e = 0 of ``gain_c`` (B, 3) [1/s] (at most ``MAX_RODS_DRAWN`` rods)."""
     nb = min(run.tip_position.shape[1], MAX_RODS_DRAWN)
     t = run.time
-    fig, axes = plt.subplots(1, 3, figsize=(13, 4))
-    for c, ax in enumerate(axes):
+    desired = (run.tip_position + run.error)[:, :nb]  # the target, or the desired path, over time
+    fig, axes = plt.subplots(1, 4, figsize=(17, 4))
+    for c, ax in enumerate(axes[:3]):
         ax.plot(t, run.tip_position[:, :nb, c] * 1e3, lw=1)
-        ax.plot(t, np.broadcast_to(run.target[:nb, c] * 1e3, (len(t), nb)), "k--", lw=0.8)
+        ax.plot(t, desired[..., c] * 1e3, "k--", lw=0.8)
         ax.set_xlabel("t [s]")
         ax.set_ylabel(f"tip {'xyz'[c]} [mm]")
         ax.grid(True, alpha=0.3)
-    fig.suptitle("tip displacement (dashed: target)")
+    axes[3].plot(run.tip_position[:, :nb, 0] * 1e3, run.tip_position[:, :nb, 1] * 1e3, lw=1, gid="actual")
+    axes[3].plot(desired[..., 0] * 1e3, desired[..., 1] * 1e3, "k--", lw=0.8, gid="desired")
+    axes[3].set_xlabel("x [mm]")
+    axes[3].set_ylabel("y [mm]")
+    axes[3].set_aspect("equal", adjustable="datalim")
+    axes[3].set_title("tip path (x-y)")
+    axes[3].grid(True, alpha=0.3)
+    fig.suptitle("tip against the desired tip (dashed)")
     fig.tight_layout()
     _save(fig, out_dir / "control_tip.png")
     fig, ax = plt.subplots(figsize=(7, 4))

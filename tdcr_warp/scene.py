@@ -30,6 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from .drawing import display_options
+from .tippath import path_from_table
 from .robot import (InputError, PointForce, Robot, Tendon, check_displacements, check_slip, check_tensions,
                     require_memory)
 from .types import StaticOptions
@@ -44,7 +45,7 @@ POINT_KEYS = {"s", "force"}
 ACTUATION_KEYS = {"tensions", "displacements", "slip", "steps"}
 STEP_KEYS = {"start", "tensions"}
 DYNAMICS_KEYS = {"dt", "alpha", "steps", "damping_shear", "damping_bending", "drag", "shapes_every"}
-CONTROL_KEYS = {"target", "target_tensions", "method", "input_model", "gain_c", "gain_k", "epsilon", "phi",
+CONTROL_KEYS = {"target", "target_tensions", "path", "method", "input_model", "gain_c", "gain_k", "epsilon", "phi",
                 "tension_max", "model_every"}
 SOLVER_KEYS = {f.name for f in fields(StaticOptions)} | {"preset"}
 IK_KEYS = {"targets", "target_rotations", "tension_max", "displacement_range", "tol", "max_iter"}
@@ -312,8 +313,11 @@ def scene_from_dict(data: dict) -> Scene:
     if control is not None:
         if dynamics is None:
             raise InputError("[control] needs a [dynamics] table (dt, steps, ...)")
-        if ("target" in control) == ("target_tensions" in control):
-            raise InputError("[control] needs exactly one of 'target' (m) or 'target_tensions' (N)")
+        if sum(k in control for k in ("target", "target_tensions", "path")) != 1:
+            raise InputError("[control] needs exactly one of 'target' (m), 'target_tensions' (N) or 'path' "
+                             "(a desired tip trajectory)")
+        if "path" in control:
+            path_from_table(control["path"])  # checked here, built where it is used
         for key in ("target", "target_tensions", "gain_c", "gain_k", "epsilon", "phi", "tension_max"):
             if key in control:
                 _numbers(control[key], f"[control].{key}")
