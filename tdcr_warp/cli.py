@@ -320,7 +320,7 @@ def cmd_control(args) -> int:
     sim = Simulator(scene.robot, scene.tensions, dt=spec.dt, alpha=spec.alpha, options=scene.options,
                     device=args.device)
     kw = {k: ctl[k] for k in ("method", "input_model", "gain_c", "gain_k", "epsilon", "phi", "tension_max",
-                              "model_every") if k in ctl}
+                              "model_every", "gain_i") if k in ctl}
     controller = TipController(sim, target, **kw)
     run = run_closed_loop(sim, controller, steps, progress=not args.quiet, shapes_every=spec.shapes_every)
     wall = time.perf_counter() - t0

@@ -34,7 +34,7 @@ from .types import StaticOptions
 __all__ = ["ControlRun", "TipController", "allocate", "control_metrics", "run_closed_loop", "sliding_command",
            "static_target"]
 
-METHODS = ("smc", "boundary_layer")
+METHODS = ("smc", "boundary_layer", "integral")
 INPUT_MODELS = ("jacobian", "alpha")
 
 
@@ -78,12 +78,18 @@ def allocate(Bc: np.ndarray, v: np.ndarray, tau_max: np.ndarray, tau0: np.ndarra
 
 
 def sliding_command(e: np.ndarray, e_t: np.ndarray, ac: np.ndarray, *, C: np.ndarray, k: np.ndarray,
-                    eps: np.ndarray, phi: np.ndarray, method: str, xdd_d: np.ndarray | float = 0.0):
-    """S = e_t + C e and the input v = b_c tau that makes S_t = -eps sw(S) - k S on the plant
-    X2_t = a_c + b_c tau: v = C e_t + Xdd_d - a_c + eps sw(S) + k S. Shapes (B, 3); eps, phi (B,)."""
+                    eps: np.ndarray, phi: np.ndarray, method: str, xdd_d: np.ndarray | float = 0.0,
+                    Ci: np.ndarray | None = None, ie: np.ndarray | None = None):
+    """S = e_t + C e (method "integral": + Ci ie, ie the integral of e) and the input v = b_c tau
+    that makes S_t = -eps sw(S) - k S on the plant X2_t = a_c + b_c tau:
+    v = C e_t (+ Ci e) + Xdd_d - a_c + eps sw(S) + k S. sw = sgn ("smc") or sat(S / phi).
+    Shapes (B, 3); eps, phi (B,)."""
     S = e_t + C * e
+    v = C * e_t + xdd_d - ac
+    if method == "integral":
+        S, v = S + Ci * ie, v + Ci * e
     sw = np.sign(S) if method == "smc" else np.clip(S / phi[:, None], -1.0, 1.0)
-    return S, C * e_t + xdd_d - ac + eps[:, None] * sw + k * S
+    return S, v + eps[:, None] * sw + k * S
 
 
 class TipController:
@@ -93,14 +99,17 @@ class TipController:
     its velocity and acceleration enter the sliding surface and the law); gain_c, gain_k:
     diagonals (3,) or (B, 3) [1/s]; epsilon [m/s^2]
     and phi [m/s] (boundary layer): float or (B,); tension_max [N]: float, (K,) or (B, K).
-    method "smc" | "boundary_layer"; input_model "jacobian" | "alpha". model_robot: the robot
+    method "smc" | "boundary_layer" | "integral" (the boundary layer on S = e_t + C e + Ci int e:
+    the integral removes the steady error a wrong model leaves; gain_i = Ci, default C^2 / 4,
+    critically damped; docs/physics.md has the Lyapunov argument; the integral is held while the
+    allocation cannot deliver the command: no wind-up); input_model "jacobian" | "alpha". model_robot: the robot
     the controller believes in (its statics, frequency and damping), default the simulated one;
     give the nominal robot to test robustness to plant uncertainty.
     """
 
     def __init__(self, sim: Simulator, target, *, method: str = "boundary_layer", input_model: str = "jacobian",
                  gain_c=20.0, gain_k=20.0, epsilon=0.005, phi=1e-3, tension_max=8.0, model_every: int = 5,
-                 model_robot: Robot | None = None):
+                 model_robot: Robot | None = None, gain_i=None):
         if method not in METHODS:
             raise InputError(f"control method must be one of {METHODS}, got {method!r}")
         if input_model not in INPUT_MODELS:
@@ -116,6 +125,10 @@ class TipController:
         self.eps = per_rod("epsilon", epsilon, B, ())
         self.phi = per_rod("phi", phi, B, ())
         self.tau_max = per_rod("tension_max", tension_max, B, (K,), bound=True)
+        self.Ci = self.C**2 / 4 if gain_i is None else per_rod("gain_i", gain_i, B, (3,))
+        if (self.Ci < 0).any():
+            raise InputError(f"gain_i must be >= 0, got {self.Ci[self.Ci < 0][0]!r}")
+        self.ie = np.zeros((B, 3))  # the integral of the tip error [m s] (method "integral")
         for name, arr in (("gain_c", self.C), ("gain_k", self.k), ("tension_max", self.tau_max)):
             if (arr <= 0).any():
                 raise InputError(f"{name} must be positive, got {arr[arr <= 0][0]!r}")
@@ -141,6 +154,11 @@ class TipController:
         self.static_opts = StaticOptions(nodes=sim.opts.nodes, integrator=sim.opts.integrator,
                                          model=sim.opts.model, precision=sim.opts.precision, threads=sim.opts.threads,
                                          sensitivities=True)
+
+    def surface(self, e: np.ndarray, e_t: np.ndarray) -> np.ndarray:
+        """The sliding variable S (B, 3) of the errors e, e_t (and the current error integral)."""
+        S = e_t + self.C * e
+        return S + self.Ci * self.ie if self.method == "integral" else S
 
     def desired(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The desired tip position, velocity and acceleration (B, 3) at time t [s]."""
@@ -208,8 +226,12 @@ class TipController:
         e = p_d - self.sim.tip_position
         e_t = v_d - self.sim.tip_velocity
         _, v = sliding_command(e, e_t, ac, C=self.C, k=self.k, eps=self.eps, phi=self.phi, method=self.method,
-                               xdd_d=a_d)
+                               xdd_d=a_d, Ci=self.Ci, ie=self.ie)
         self.tau = allocate(bc, v, self.tau_max, self.tau)
+        if self.method == "integral":  # integrate where the tendons deliver the command (no wind-up)
+            miss = np.linalg.norm(np.einsum("bik,bk->bi", bc, self.tau) - v, axis=1)
+            delivered = miss <= 0.1 * np.linalg.norm(v, axis=1) + 1e-12
+            self.ie = np.where(delivered[:, None], self.ie + self.sim.dt * e, self.ie)
         self.steps += 1
         return self.tau
 
@@ -258,7 +280,7 @@ def run_closed_loop(sim: Simulator, controller: TipController, steps: int, *, pr
     t0 = sim.steps_done * sim.dt
     p_d, v_d, _ = controller.desired(t0)
     desired[0] = p_d
-    S[0] = (v_d - vel[0]) + controller.C * (p_d - tip[0])
+    S[0] = controller.surface(p_d - tip[0], v_d - vel[0])
     shape_steps, shapes = ([0], [sim.shapes()]) if shapes_every else ([], [])
     bar = Progress(steps, B) if progress is True else None
     for i in range(steps):
@@ -267,7 +289,7 @@ def run_closed_loop(sim: Simulator, controller: TipController, steps: int, *, pr
         tip[i + 1], vel[i + 1], conv[i] = r.tip_position, r.tip_velocity, r.converged
         p_d, v_d, _ = controller.desired(t0 + (i + 1) * sim.dt)
         desired[i + 1] = p_d
-        S[i + 1] = (v_d - vel[i + 1]) + controller.C * (p_d - tip[i + 1])
+        S[i + 1] = controller.surface(p_d - tip[i + 1], v_d - vel[i + 1])
         if shapes_every and (i + 1) % shapes_every == 0:
             shape_steps.append(i + 1)
             shapes.append(sim.shapes())

@@ -62,7 +62,7 @@ def control_job(scene: Scene, nominal: Scene | None = None, device=None, progres
     else:
         target = ctl["target"]
     kw = {k: ctl[k] for k in ("method", "input_model", "gain_c", "gain_k", "epsilon", "phi", "tension_max",
-                              "model_every") if k in ctl}
+                              "model_every", "gain_i") if k in ctl}
     controller = TipController(sim, target, model_robot=None if nominal is None else _tiled(nominal, B), **kw)
     run = run_closed_loop(sim, controller, spec.steps, progress=progress or False)
     m = control_metrics(run, controller.tau_max)

@@ -46,7 +46,7 @@ ACTUATION_KEYS = {"tensions", "displacements", "slip", "steps"}
 STEP_KEYS = {"start", "tensions"}
 DYNAMICS_KEYS = {"dt", "alpha", "steps", "damping_shear", "damping_bending", "drag", "shapes_every"}
 CONTROL_KEYS = {"target", "target_tensions", "path", "method", "input_model", "gain_c", "gain_k", "epsilon", "phi",
-                "tension_max", "model_every"}
+                "tension_max", "model_every", "gain_i"}
 SOLVER_KEYS = {f.name for f in fields(StaticOptions)} | {"preset"}
 IK_KEYS = {"targets", "target_rotations", "tension_max", "displacement_range", "tol", "max_iter"}
 HARDWARE_KEYS = {"servo_columns", "marker_offset", "base_offset"}
@@ -318,7 +318,7 @@ def scene_from_dict(data: dict) -> Scene:
                              "(a desired tip trajectory)")
         if "path" in control:
             path_from_table(control["path"])  # checked here, built where it is used
-        for key in ("target", "target_tensions", "gain_c", "gain_k", "epsilon", "phi", "tension_max"):
+        for key in ("target", "target_tensions", "gain_c", "gain_k", "epsilon", "phi", "tension_max", "gain_i"):
             if key in control:
                 _numbers(control[key], f"[control].{key}")
         if "target_tensions" in control:

@@ -178,3 +178,44 @@ nodes = 10
     assert np.allclose(run["desired"][0, 0], [0.01, 0.0, 0.4998])
     scene.write_text(text.replace('path = { shape = "circle"', 'target = [0.0, 0.0, 0.5]\npath = { shape = "circle"'))
     assert main(["control", str(scene), "--out", str(tmp_path / "o2"), "--quiet"]) == 2
+
+
+def test_integral_sliding_mode_removes_the_steady_error_of_a_wrong_model():
+    """The plant's drift a_c is up to 0.4 m/s^2 off the model's (a constant model error d): the
+    boundary layer settles where k S + eps sw(S) balances d, off the target; the integral surface
+    S = e_t + C e + Ci int e settles at the same S, which now means e -> 0 (e_tt + C e_t + Ci e = 0)."""
+    ac_model = np.array([[0.3, -0.2, 0.1]])
+    d = np.array([[0.4, -0.3, 0.2]])
+    bc = np.eye(3)[None] * 2.0
+    C, k = np.full((1, 3), 10.0), np.full((1, 3), 5.0)
+    eps, phi = np.array([0.05]), np.array([0.01])
+    target, dt = np.array([[0.02, -0.01, 0.03]]), 1e-3
+    final = {}
+    for method in ("boundary_layer", "integral"):
+        x, v, ie = np.zeros((1, 3)), np.zeros((1, 3)), np.zeros((1, 3))
+        for _ in range(8000):
+            e = target - x
+            _, cmd = sliding_command(e, -v, ac_model, C=C, k=k, eps=eps, phi=phi, method=method, Ci=C**2 / 4, ie=ie)
+            acc = ac_model + d + np.einsum("bij,bj->bi", bc, np.linalg.solve(bc[0], cmd[0])[None])
+            v, x, ie = v + dt * acc, x + dt * (v + dt * acc), ie + dt * e
+        final[method] = float(np.abs(target - x).max())
+    # boundary layer: S_t = -d - eps sw(S) - k S settles at |S*| = (|d| - eps) / k = 0.07 (outside the
+    # layer phi), so e = S* / C = 7 mm off
+    assert final["boundary_layer"] == pytest.approx((0.4 - 0.05) / 5 / 10, rel=1e-3)
+    assert final["integral"] < 1e-6
+
+
+def test_integral_control_on_the_rod_settles_where_the_nominal_model_is_wrong():
+    """A plant 10% stiffer than the controller's model: the boundary layer is left off the
+    target, the integral surface brings the tip within 0.1 mm."""
+    plant, model = seed_robot(youngs_modulus=209e9), seed_robot()
+    from tdcr_warp.control import static_target
+    target = static_target(model, [[3.0, 0.0, 0.0, 0.0]], nodes=10)
+    err = {}
+    for method in ("boundary_layer", "integral"):
+        sim = tw.Simulator(plant, np.zeros((1, 4)), dt=0.005, alpha=-0.2, nodes=10)
+        ctl = TipController(sim, target, method=method, epsilon=0.05, phi=0.005, model_robot=model)
+        run = run_closed_loop(sim, ctl, 300)
+        assert (run.tensions >= 0).all() and (run.tensions <= 8.0).all()
+        err[method] = float(np.linalg.norm(run.error[-1]))
+    assert err["integral"] < 1e-4 < err["boundary_layer"], err
