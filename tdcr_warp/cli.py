@@ -179,8 +179,7 @@ def _sensitivity_row(sol, b: int) -> dict:
         if sol.branch is not None:
             row |= {"branch": int(sol.branch[b]), "multiple_stable": bool(sol.multiple_stable[b])}
     if sol.tip_jacobian is not None:
-        clean = lambda a: np.where(np.isfinite(a), a, None).tolist()  # noqa: E731 (JSON has no NaN)
-        row |= {"tip_jacobian": clean(sol.tip_jacobian[b]), "tip_compliance": clean(sol.tip_compliance[b])}
+        row |= {"tip_jacobian": sol.tip_jacobian[b].tolist(), "tip_compliance": sol.tip_compliance[b].tolist()}
     return row
 
 

@@ -174,7 +174,9 @@ class Shooting:
 
     @functools.cached_property
     def probe_nodes(self):
-        """The shapes of a probe (``probe``), apart from the solution's ``nodes``."""
+        """The shapes of a probe (``probe``), apart from the solution's ``nodes``; made with the
+        first probe, which also loads the evaluation kernel (once per Shooting, not per probe)."""
+        self.kern.evaluate.module.load(self.device, 1 if wp.get_device(self.device).is_cpu else 256)
         return make_state(self.kern, self.dev, self.b, self.n1, self.dynamic)
 
     def probe(self, x: np.ndarray, model=None, *, shapes: bool = False) -> dict[str, np.ndarray]:
@@ -184,11 +186,9 @@ class Shooting:
         profile is overwritten, so read ``results`` first). Returns float64 host copies of the residual
         ``res`` (b, nu), the tip ``p`` (b, 3) and ``R`` (b, 3, 3) and with ``shapes`` the node
         arrays ``P``, ``Rn``, ``n``, ``m`` (b, N+1, ...)."""
-        kernel = self.kern.evaluate
-        kernel.module.load(self.device, 1 if wp.get_device(self.device).is_cpu else 256)
-        self.dev.put(self.x_in, x)
         out = self.probe_nodes
-        wp.launch(kernel, dim=self.b, device=self.device,
+        self.dev.put(self.x_in, x)
+        wp.launch(self.kern.evaluate, dim=self.b, device=self.device,
                   inputs=[model or self.model, self.control, self.step, self.x_in, out, *self.probe_out, int(shapes)])
         f64 = np.float64
         res, p, R = (a.numpy().astype(f64) for a in self.probe_out)
