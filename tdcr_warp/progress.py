@@ -7,8 +7,6 @@ from __future__ import annotations
 import sys
 import time
 
-from tqdm import tqdm
-
 
 class Progress:
     """done/total units of ``rods`` rods each (the bar counts total x rods rod-units), rod-units/s,
@@ -18,6 +16,8 @@ class Progress:
     active: "Progress | None" = None  # the bar on the screen (a message printed now would join its line)
 
     def __init__(self, total: int, rods: int, rate_unit: str = "rod-steps/s", start: int = 0):
+        from tqdm import tqdm  # imported with the first bar: `import tdcr_warp` stays without it
+
         self.rods = rods
         self.bar = None
         Progress.active = self  # before tqdm draws: an interrupt may come while it does
