@@ -296,11 +296,10 @@ def _animate(scene, run, grid: np.ndarray, out: Path) -> None:
 
 
 def cmd_control(args) -> int:
-    from .control import METRIC_UNITS, TipController, control_metrics, run_closed_loop, static_target
-    from .dynamics import Simulator
+    from .control import METRIC_UNITS, control_metrics, run_closed_loop
+    from .jobs import scene_controller, scene_simulator
     from .plotting import plot_control
     from .scene import load_scene
-    from .tippath import path_from_table
 
     scene = _apply_overrides(load_scene(args.scene), args)
     spec, ctl = scene.dynamics, scene.control
@@ -310,17 +309,8 @@ def cmd_control(args) -> int:
     _check_shapes(args, spec)
     out = _out_dir(args, Path("out") / Path(args.scene).stem, "metrics.json")
     t0 = time.perf_counter()
-    if "target_tensions" in ctl:
-        target = static_target(scene.robot, ctl["target_tensions"], options=scene.options, device=args.device)
-    elif "path" in ctl:
-        target = path_from_table(ctl["path"])
-    else:
-        target = ctl["target"]
-    sim = Simulator(scene.robot, scene.tensions, dt=spec.dt, alpha=spec.alpha, options=scene.options,
-                    device=args.device)
-    kw = {k: ctl[k] for k in ("method", "input_model", "gain_c", "gain_k", "epsilon", "phi", "tension_max",
-                              "model_every", "gain_i") if k in ctl}
-    controller = TipController(sim, target, **kw)
+    sim = scene_simulator(scene, args.device)
+    controller = scene_controller(scene, sim, device=args.device)
     run = run_closed_loop(sim, controller, steps, progress=not args.quiet, shapes_every=spec.shapes_every)
     wall = time.perf_counter() - t0
     metrics = control_metrics(run, controller.tau_max)
@@ -340,7 +330,7 @@ def cmd_control(args) -> int:
     results = {
         "scene": str(args.scene), "settings": _settings(scene, args, args.device or "default")
         | {"dt": spec.dt, "alpha": spec.alpha, "steps": steps, "method": controller.method,
-           "input_model": controller.input_model},
+           "input_model": controller.input_model, "command": controller.command},
         "batch_size": B, "wall_time_s": wall, "target": controller.target.tolist(),
         "completed": (sim.failed_step < 0).tolist(),
         "metrics": {k: np.where(np.isfinite(v), v, -1.0).tolist() for k, v in metrics.items()},

@@ -5,13 +5,22 @@ S = e_t + C e, exponential reaching law S_t = -eps sw(S) - k S with sw = sgn ("s
 sat(S / phi) ("boundary_layer"). Written X2_t = a_c + b_c tau, the command is
 b_c tau = C e_t + Xdd_d - a_c + eps sw(S) + k S, allocated into tensions 0 <= tau <= tau_max by
 a bounded least-squares problem per rod (so K tendons reach targets off the tendon planes).
+With ``command = "displacement"`` the controller commands motor displacements instead (what
+hardware accepts): the same law on the model X2_t = a_c + b_c q, allocated within the motor's
+range, the tension limit and the slack of each tendon (tdcr_warp/allocation.py). It tracks the
+tip across the base axis (x, y); the height follows on the surface the robot reaches (moving it
+off that surface would take co-contraction: on examples/displacement_control.toml a 0.1 mm
+squeeze of the rod costs about 3 N on each tendon of a pair).
 
 Input models (a_c, b_c):
 - "jacobian" (default): a quasi-static first-mode model of the tip,
   X2_t = w^2 (p_s(tau) - X1) - 2 zeta w X2 with p_s(tau) ~ p_s(tau0) + J (tau - tau0), where
   J = d p_tip / d tau comes from the batched statics (its tip Jacobian, refreshed every
   ``model_every`` steps), w is the Euler-Bernoulli first bending frequency and zeta the modal
-  damping of the strain damping Bbt.
+  damping of the strain damping Bbt. Commanding displacements, J = d p_s / d q and the
+  tendons held by their motors stiffen the rod: w^2 = k_tip / m_1 with k_tip the lateral tip
+  stiffness of the statics (its tip compliance) and m_1 = 3 EI / (L^3 w_1^2) (0.243 rho A L)
+  the first mode's mass; the damping term keeps 2 zeta w_1 (the wires add no damping).
 - "alpha": the report's model, a_c = (n'(L) + rho A g - R C q|q|) / (rho A) and
   b_c = -[alpha_1 .. alpha_K] / (rho A) with alpha_i = hat(p_i')^2 p_i'' / |p_i'|^3 + p_i' / |p_i'|
   (p_i the tendon path at the tip).
@@ -26,8 +35,9 @@ import numpy as np
 
 from .dynamics import Simulator
 from .progress import Progress
+from .allocation import allocate_displacements
 from .robot import InputError, Robot, real_array, require_memory
-from .statics import solve_static
+from .statics import reference_lengths, solve_static
 from .tippath import TipPath
 from .types import StaticOptions
 
@@ -36,6 +46,8 @@ __all__ = ["ControlRun", "TipController", "allocate", "control_metrics", "run_cl
 
 METHODS = ("smc", "boundary_layer", "integral")
 INPUT_MODELS = ("jacobian", "alpha")
+COMMANDS = ("tension", "displacement")
+LATERAL = np.array([1.0, 1.0, 0.0])  # the axes a displacement command tracks (x, y: across the base axis)
 
 
 def per_rod(name: str, value, B: int, tail: tuple[int, ...], bound: bool = False) -> np.ndarray:
@@ -99,6 +111,10 @@ class TipController:
     its velocity and acceleration enter the sliding surface and the law); gain_c, gain_k:
     diagonals (3,) or (B, 3) [1/s]; epsilon [m/s^2]
     and phi [m/s] (boundary layer): float or (B,); tension_max [N]: float, (K,) or (B, K).
+    command "tension" | "displacement" (every tendon under displacement control; the input model
+    "jacobian"): what the controller sets; displacement_range (lo, hi) [m], each a float, (K,)
+    or (B, K): the motors' range (default +- L / 20), with tension_max the bound the allocation
+    keeps on the tensions the displacements make.
     method "smc" | "boundary_layer" | "integral" (the boundary layer on S = e_t + C e + Ci int e:
     the integral removes the steady error a wrong model leaves; gain_i = Ci, default C^2 / 4,
     critically damped; docs/physics.md has the Lyapunov argument; the integral is held while the
@@ -109,15 +125,18 @@ class TipController:
 
     def __init__(self, sim: Simulator, target, *, method: str = "boundary_layer", input_model: str = "jacobian",
                  gain_c=20.0, gain_k=20.0, epsilon=0.005, phi=1e-3, tension_max=8.0, model_every: int = 5,
-                 model_robot: Robot | None = None, gain_i=None):
+                 model_robot: Robot | None = None, gain_i=None, command: str = "tension",
+                 displacement_range=None):
         if method not in METHODS:
             raise InputError(f"control method must be one of {METHODS}, got {method!r}")
         if input_model not in INPUT_MODELS:
             raise InputError(f"control input_model must be one of {INPUT_MODELS}, got {input_model!r}")
+        if command not in COMMANDS:
+            raise InputError(f"control command must be one of {COMMANDS}, got {command!r}")
         B, K = sim.B, sim.robot.n_tendons
         if K == 0:
             raise InputError("control needs at least one tendon")
-        self.sim, self.method, self.input_model = sim, method, input_model
+        self.sim, self.method, self.input_model, self.command = sim, method, input_model, command
         self.path = target if isinstance(target, TipPath) else TipPath.constant(per_rod("target", target, B, (3,)))
         self.target = self.desired(sim.steps_done * sim.dt)[0]  # where the path starts (B, 3)
         self.C = per_rod("gain_c", gain_c, B, (3,))
@@ -135,15 +154,15 @@ class TipController:
         if (self.eps < 0).any() or (self.phi <= 0).any():
             raise InputError("epsilon must be >= 0 and phi > 0")
         self.model_every = model_every
-        self.tau = np.zeros((B, K))
         self._static = None
         self._J = None
         self._p0 = None
-        self._tau_lin = None
+        self._u_lin = None
         self.steps = 0
         robot = self.model_robot = model_robot or sim.robot
         if robot.n_tendons != K:
             raise InputError(f"model_robot has {robot.n_tendons} tendons, the plant {K}")
+        self.u = sim.displacements if command == "displacement" else np.zeros((B, K))  # the last command
         sec = robot.section()
         EI = np.broadcast_to(sec["kbt"][:, 0], (B,))
         rho_a = np.broadcast_to(robot.density * sec["area"], (B,))
@@ -151,9 +170,39 @@ class TipController:
         self.omega = 1.8751**2 * np.sqrt(EI / (rho_a * L**4))
         self.zeta = self.omega * np.broadcast_to(robot.damping_bending[:, 0], (B,)) / (2 * EI)
         self.rho_a = rho_a
+        self.m_mode = 3 * EI / (L**3 * self.omega**2)  # the first mode's mass, 0.243 rho A L
         self.static_opts = StaticOptions(nodes=sim.opts.nodes, integrator=sim.opts.integrator,
                                          model=sim.opts.model, precision=sim.opts.precision, threads=sim.opts.threads,
                                          sensitivities=True)
+        if command == "displacement":
+            self._displacement_setup(robot, displacement_range)
+
+    def _displacement_setup(self, robot: Robot, displacement_range) -> None:
+        """Checks of displacement commands; the motors' range q_lo, q_hi (B, K) [m]."""
+        for name, rb in (("the plant", self.sim.robot), ("model_robot", robot)):
+            bad = [k for k in range(rb.n_tendons) if k not in set(rb.displaced)]
+            if bad:
+                raise InputError(f"command = 'displacement': tendon(s) {bad} of {name} are under tension control "
+                                 "(give every tendon control = 'displacement')")
+        if self.input_model != "jacobian":
+            raise InputError("command = 'displacement' needs input_model = 'jacobian' (the statics' d tip / d q)")
+        B, K = self.u.shape
+        L = np.broadcast_to(robot.length[:, None], (B, K))
+        try:
+            lo, hi = (-L / 20, L / 20) if displacement_range is None else displacement_range
+        except (TypeError, ValueError):
+            raise InputError(f"displacement_range must be (lo, hi) [m], got {displacement_range!r}") from None
+        self.q_lo, self.q_hi = (np.broadcast_to(per_rod(f"displacement_range[{i}]", v, B, (K,)), (B, K)).copy()
+                                for i, v in enumerate((lo, hi)))
+        if (self.q_lo >= self.q_hi).any():
+            raise InputError(f"displacement_range: lo must be below hi, got {displacement_range!r}")
+        if ((self.u < self.q_lo) | (self.u > self.q_hi)).any():
+            b, k = np.argwhere((self.u < self.q_lo) | (self.u > self.q_hi))[0]
+            raise InputError(f"the start's displacement[{b}][{k}] = {self.u[b, k]!r} m is outside displacement_range "
+                             f"[{self.q_lo[b, k]!r}, {self.q_hi[b, k]!r}]")
+        self._reference = reference_lengths(robot, options=self.static_opts, device=self.sim.dev)
+        self._lin = None
+        self._warm = None
 
     def surface(self, e: np.ndarray, e_t: np.ndarray) -> np.ndarray:
         """The sliding variable S (B, 3) of the errors e, e_t (and the current error integral)."""
@@ -169,22 +218,40 @@ class TipController:
             raise InputError(f"tip path: expected (3,) or ({B}, 3) per quantity for {B} rods, got "
                              f"{[np.shape(a) for a in self.path(t)]}") from None
 
-    def _linearise(self, tau: np.ndarray) -> None:
-        """p_s(tau) and J = d p_s / d tau: one batched static solve with its tip Jacobian
-        (tdcr_warp/sensitivity.py: probes of the converged shooting problem, no extra solves)."""
-        base = solve_static(self.model_robot, tau, options=self.static_opts, device=self.sim.dev,
-                            initial=self._static)
-        self._static, self._J, self._p0, self._tau_lin = base, base.tip_jacobian[:, :3], base.tip_position, tau.copy()
+    def _linearise(self, u: np.ndarray) -> None:
+        """p_s(u) and J = d p_s / d u at the command u (tensions or displacements): one batched
+        static solve with its tip Jacobian (tdcr_warp/sensitivity.py: probes of the converged
+        shooting problem, no extra solves); commanding displacements, also the tensions, their
+        Jacobian, the slack set and each slack tendon's spare length."""
+        disp = self.command == "displacement"
+        base = solve_static(self.model_robot, np.zeros_like(u) if disp else u, displacements=u if disp else None,
+                            options=self.static_opts, device=self.sim.dev, initial=self._static)
+        if disp and not base.converged.all():  # those rods keep their last model
+            bad = np.flatnonzero(~base.converged)
+            if self._static is None:
+                raise InputError(f"the controller's model did not converge for rods {bad[:10].tolist()} at the "
+                                 f"command {u[bad[0]].tolist()} ({base.failure_reasons()[bad[0]]})")
+            base = base.replaced(bad, self._static.rows(bad))
+            u = u.copy()
+            u[bad] = self._u_lin[bad]
+        self._static, self._J, self._p0, self._u_lin = base, base.tip_jacobian[:, :3], base.tip_position, u.copy()
+        if disp:
+            gap = np.where(base.slack, self._reference - u - base.tendon_free_length, 0.0)
+            self._lin = {"q": u.copy(), "tension": base.tendon_tension_base, "tension_jacobian": base.tension_jacobian,
+                         "slack_jacobian": base.slack_jacobian,
+                         "slack": base.slack, "gap": np.maximum(gap, 0.0)}
+            C = base.tip_compliance
+            self._w2 = 2.0 / ((C[:, 0, 0] + C[:, 1, 1]) * self.m_mode)  # the held tendons' stiffness
 
     def plant(self) -> tuple[np.ndarray, np.ndarray]:
         """a_c (B, 3) and b_c (B, 3, K) of X2_t = a_c + b_c tau at the current state."""
         X1, X2 = self.sim.tip_position, self.sim.tip_velocity
         if self.input_model == "jacobian":
             if self._J is None or self.steps % self.model_every == 0:
-                self._linearise(self.tau)
-            w2 = (self.omega**2)[:, None]
+                self._linearise(self.u)
+            w2 = (self._w2 if self.command == "displacement" else self.omega**2)[:, None]
             bc = w2[:, :, None] * self._J
-            ac = w2 * (self._p0 - np.einsum("bik,bk->bi", self._J, self._tau_lin) - X1) \
+            ac = w2 * (self._p0 - np.einsum("bik,bk->bi", self._J, self._u_lin) - X1) \
                 - (2 * self.zeta * self.omega)[:, None] * X2
             return ac, bc
         return self._alpha_model()
@@ -220,27 +287,36 @@ class TipController:
         return ac, np.stack(cols, axis=-1)
 
     def __call__(self) -> np.ndarray:
-        """Tensions (B, K) [N] for the next step, from the simulator's current tip state."""
+        """The command (B, K) for the next step, tensions [N] or displacements [m] (``command``),
+        from the simulator's current tip state."""
         ac, bc = self.plant()
         p_d, v_d, a_d = self.desired(self.sim.steps_done * self.sim.dt)
         e = p_d - self.sim.tip_position
         e_t = v_d - self.sim.tip_velocity
         _, v = sliding_command(e, e_t, ac, C=self.C, k=self.k, eps=self.eps, phi=self.phi, method=self.method,
                                xdd_d=a_d, Ci=self.Ci, ie=self.ie)
-        self.tau = allocate(bc, v, self.tau_max, self.tau)
+        disp = self.command == "displacement"
+        if disp:
+            bc, v = bc * LATERAL[:, None], v * LATERAL
+            self.u, self._warm = allocate_displacements(bc, v, self.u, self._lin, self.q_lo, self.q_hi, self.tau_max,
+                                                        self._warm)
+        else:
+            self.u = allocate(bc, v, self.tau_max, self.u)
         if self.method == "integral":  # integrate where the tendons deliver the command (no wind-up)
-            miss = np.linalg.norm(np.einsum("bik,bk->bi", bc, self.tau) - v, axis=1)
+            miss = np.linalg.norm(np.einsum("bik,bk->bi", bc, self.u) - v, axis=1)
             delivered = miss <= 0.1 * np.linalg.norm(v, axis=1) + 1e-12
-            self.ie = np.where(delivered[:, None], self.ie + self.sim.dt * e, self.ie)
+            self.ie = np.where(delivered[:, None], self.ie + self.sim.dt * (e * LATERAL if disp else e), self.ie)
         self.steps += 1
-        return self.tau
+        return self.u
 
 
 @dataclass
 class ControlRun:
     """Closed-loop record: time (T+1,), tip_position, tip_velocity, error = desired - tip_position
-    (T+1, B, 3) [m, m/s, m], sliding (T+1, B, 3) [m/s], tensions (T, B, K) [N], converged (T, B),
-    target (B, 3) (where the desired path starts), desired (T+1, B, 3) [m] (the desired tip);
+    (T+1, B, 3) [m, m/s, m], sliding (T+1, B, 3) [m/s], tensions (T, B, K) [N] (commanding
+    displacements: the tensions at the motors at the end of each step), converged (T, B), target
+    (B, 3) (where the desired path starts), desired (T+1, B, 3) [m] (the desired tip);
+    displacements (T, B, K) [m]: the commanded motor displacements (empty when tensions are);
     shape_steps (S,), positions (S, B, N+1, 3) [m] and rotations (S, B, N+1, 3, 3): the shapes
     every ``shapes_every`` steps (empty if 0)."""
 
@@ -253,6 +329,7 @@ class ControlRun:
     converged: np.ndarray
     target: np.ndarray
     desired: np.ndarray = field(default_factory=lambda: np.zeros((0, 0, 3)))
+    displacements: np.ndarray = field(default_factory=lambda: np.zeros((0, 0, 0)))
     shape_steps: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int32))
     positions: np.ndarray = field(default_factory=lambda: np.zeros((0, 0, 0, 3)))
     rotations: np.ndarray = field(default_factory=lambda: np.zeros((0, 0, 0, 3, 3)))
@@ -274,6 +351,8 @@ def run_closed_loop(sim: Simulator, controller: TipController, steps: int, *, pr
     vel = np.zeros((steps + 1, B, 3))
     S = np.zeros((steps + 1, B, 3))
     taus = np.zeros((steps, B, K))
+    disp = controller.command == "displacement"
+    qs = np.zeros((steps if disp else 0, B, K))
     conv = np.zeros((steps, B), dtype=bool)
     desired = np.zeros((steps + 1, B, 3))
     tip[0], vel[0] = sim.tip_position, sim.tip_velocity
@@ -284,8 +363,13 @@ def run_closed_loop(sim: Simulator, controller: TipController, steps: int, *, pr
     shape_steps, shapes = ([0], [sim.shapes()]) if shapes_every else ([], [])
     bar = Progress(steps, B) if progress is True else None
     for i in range(steps):
-        taus[i] = controller()
-        r = sim.step(taus[i])
+        if disp:
+            qs[i] = controller()
+            r = sim.step(displacements=qs[i])
+            taus[i] = sim.tendons()["tension_base"]
+        else:
+            taus[i] = controller()
+            r = sim.step(taus[i])
         tip[i + 1], vel[i + 1], conv[i] = r.tip_position, r.tip_velocity, r.converged
         p_d, v_d, _ = controller.desired(t0 + (i + 1) * sim.dt)
         desired[i + 1] = p_d
@@ -301,7 +385,7 @@ def run_closed_loop(sim: Simulator, controller: TipController, steps: int, *, pr
         bar.close()
     return ControlRun(time=sim.dt * np.arange(steps + 1), tip_position=tip, tip_velocity=vel,
                       error=desired - tip, sliding=S, tensions=taus, converged=conv,
-                      target=controller.target.copy(), desired=desired, shape_steps=np.array(shape_steps, dtype=np.int32),
+                      target=controller.target.copy(), desired=desired, displacements=qs, shape_steps=np.array(shape_steps, dtype=np.int32),
                       positions=np.array([p for p, _ in shapes]) if shapes else np.zeros((0, B, n1, 3)),
                       rotations=np.array([R for _, R in shapes]) if shapes else np.zeros((0, B, n1, 3, 3)))
 
@@ -351,7 +435,8 @@ METRIC_UNITS = {"final_error": "m", "rms_error": "m", "max_error": "m", "lag": "
 
 
 def static_target(robot: Robot, tensions, **kw) -> np.ndarray:
-    """The static tip under ``tensions``: a reachable target."""
+    """The static tip under ``tensions`` (and ``displacements``, among ``kw`` for solve_static):
+    a reachable target."""
     sol = solve_static(robot, tensions, **kw)
     if not sol.converged.all():
         raise InputError("the static target did not converge")

@@ -231,6 +231,11 @@ class Simulator:
         return StepResult(self.tip_position.copy(), self.tip_velocity.copy(), self.tip_acceleration.copy(),
                           ok, iters, resid, status)
 
+    @property
+    def displacements(self) -> np.ndarray:
+        """(B, K) the motor displacements held now [m] (zero for tendons under tension control)."""
+        return self._q.copy()
+
     def _read_tips(self) -> None:
         tips = [c.tips() for c in self.parts]
         self.tip_position, self.tip_velocity, self.tip_acceleration = (

@@ -11,14 +11,14 @@ from pathlib import Path
 
 import numpy as np
 
-from .control import TipController, control_metrics, run_closed_loop
+from .control import TipController, control_metrics, run_closed_loop, static_target
 from .dynamics import Simulator
 from .robot import InputError
 from .scene import Scene, scene_from_dict
 from .statics import solve_static
 from .tippath import path_from_table
 
-__all__ = ["SweepJob", "constant_curvature_tip", "control_job", "convex_hull_2d", "failure_counts", "pareto_front",
+__all__ = ["SweepJob", "constant_curvature_tip", "control_job", "scene_controller", "scene_simulator", "convex_hull_2d", "failure_counts", "pareto_front",
            "static_job", "summarize_gain_grid", "summarize_montecarlo", "summarize_workspace"]
 
 
@@ -44,27 +44,48 @@ def static_job(scene: Scene, device=None, shapes: bool = False) -> dict[str, np.
     return out
 
 
-def control_job(scene: Scene, nominal: Scene | None = None, device=None, progress=None) -> dict[str, np.ndarray]:
-    """One closed-loop run per rod; the controller models ``nominal``'s robot if given;
-    ``progress(step, steps)`` is called after every time step."""
-    spec, ctl = scene.dynamics, scene.control
-    if spec is None or ctl is None:
-        raise InputError("this job needs [dynamics] and [control] tables")
-    sim = Simulator(scene.robot, scene.tensions, dt=spec.dt, alpha=spec.alpha, options=scene.options, device=device)
-    B = sim.B
-    if "target_tensions" in ctl:
-        model = (nominal or scene).robot
-        tt = np.broadcast_to(np.array(ctl["target_tensions"], float), (B, scene.robot.n_tendons))
-        target = solve_static(model if nominal is None else _tiled(nominal, B), tt, options=scene.options,
-                              device=device).tip_position
+# [control] keys passed to TipController as they are
+CONTROLLER_KEYS = ("method", "input_model", "gain_c", "gain_k", "epsilon", "phi", "tension_max", "model_every",
+                   "gain_i", "command", "displacement_range")
+
+
+def scene_simulator(scene: Scene, device=None) -> Simulator:
+    """The scene's rods at rest under its [actuation] command, with its [dynamics] settings."""
+    spec = scene.dynamics
+    if spec is None:
+        raise InputError("this job needs a [dynamics] table")
+    return Simulator(scene.robot, scene.tensions, dt=spec.dt, alpha=spec.alpha, options=scene.options,
+                     device=device, displacements=scene.displacements)
+
+
+def scene_controller(scene: Scene, sim: Simulator, nominal: Scene | None = None, device=None) -> TipController:
+    """The scene's [control] table as a controller of ``sim``'s rods; it models ``nominal``'s
+    robot if given (its target_tensions / target_displacements tip is the nominal one)."""
+    ctl = scene.control
+    if ctl is None:
+        raise InputError("this job needs a [control] table")
+    B, K = sim.B, scene.robot.n_tendons
+    model = None if nominal is None else _tiled(nominal, B)
+    if "target_tensions" in ctl or "target_displacements" in ctl:
+        disp = "target_displacements" in ctl
+        u = np.broadcast_to(np.array(ctl["target_displacements" if disp else "target_tensions"], float), (B, K))
+        target = static_target(model or scene.robot, np.zeros((B, K)) if disp else u,
+                               displacements=u if disp else None, options=scene.options, device=device)
     elif "path" in ctl:
         target = path_from_table(ctl["path"])
     else:
         target = ctl["target"]
-    kw = {k: ctl[k] for k in ("method", "input_model", "gain_c", "gain_k", "epsilon", "phi", "tension_max",
-                              "model_every", "gain_i") if k in ctl}
-    controller = TipController(sim, target, model_robot=None if nominal is None else _tiled(nominal, B), **kw)
-    run = run_closed_loop(sim, controller, spec.steps, progress=progress or False)
+    return TipController(sim, target, model_robot=model, **{k: ctl[k] for k in CONTROLLER_KEYS if k in ctl})
+
+
+def control_job(scene: Scene, nominal: Scene | None = None, device=None, progress=None) -> dict[str, np.ndarray]:
+    """One closed-loop run per rod; the controller models ``nominal``'s robot if given;
+    ``progress(step, steps)`` is called after every time step."""
+    if scene.dynamics is None or scene.control is None:
+        raise InputError("this job needs [dynamics] and [control] tables")
+    sim = scene_simulator(scene, device)
+    controller = scene_controller(scene, sim, nominal, device)
+    run = run_closed_loop(sim, controller, scene.dynamics.steps, progress=progress or False)
     m = control_metrics(run, controller.tau_max)
     ok = sim.failed_step < 0
     return {"ok": ok, "final_tip": run.tip_position[-1], "target": controller.target,

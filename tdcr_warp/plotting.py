@@ -201,7 +201,7 @@ def _time_arrows(ax, x: np.ndarray, y: np.ndarray) -> None:
 
 def plot_control(run, out_dir: Path, tension_max=None, gain_c=None) -> None:
     """The report's control figures: tip displacement; tension history with its mean and the
-    tension limit ``tension_max`` (B, K) [N]; error norm and the phase portraits x vs x_t and e
+    tension limit ``tension_max`` (B, K) [N] (and the commanded motor displacements, if any); error norm and the phase portraits x vs x_t and e
     vs e_t (x components, start o, end x, arrows in time's direction) with the sliding surface
     S = e_t + C e = 0 of ``gain_c`` (B, 3) [1/s] (at most ``MAX_RODS_DRAWN`` rods)."""
     nb = min(run.tip_position.shape[1], MAX_RODS_DRAWN)
@@ -224,10 +224,14 @@ def plot_control(run, out_dir: Path, tension_max=None, gain_c=None) -> None:
     fig.suptitle("tip against the desired tip (dashed)")
     fig.tight_layout()
     _save(fig, out_dir / "control_tip.png")
-    fig, ax = plt.subplots(figsize=(7, 4))
+    disp = run.displacements.size > 0  # commanded displacements: a second panel
+    fig, axes = plt.subplots(1, 2 if disp else 1, figsize=(13 if disp else 7, 4), squeeze=False)
+    ax = axes[0, 0]
     K = run.tensions.shape[2]
     for k in range(K):
         line, = ax.plot(t[1:], run.tensions[:, 0, k], lw=1, label=f"tendon {k + 1}")
+        if disp:
+            axes[0, 1].plot(t[1:], run.displacements[:, 0, k] * 1e3, lw=1, color=line.get_color())
         ax.axhline(run.tensions[:, 0, k].mean(), color=line.get_color(), ls="--", lw=0.8)
     if tension_max is not None:
         limits = np.unique(np.broadcast_to(tension_max, (run.tensions.shape[1], K))[0])
@@ -238,6 +242,11 @@ def plot_control(run, out_dir: Path, tension_max=None, gain_c=None) -> None:
     ax.set_title("tendon tensions")
     ax.legend()
     ax.grid(True, alpha=0.3)
+    if disp:
+        axes[0, 1].set_xlabel("t [s]")
+        axes[0, 1].set_ylabel("motor displacement [mm] (rod 0; pull +)")
+        axes[0, 1].set_title("commanded displacements")
+        axes[0, 1].grid(True, alpha=0.3)
     fig.tight_layout()
     _save(fig, out_dir / "control_tension.png")
     fig, axes = plt.subplots(1, 3, figsize=(13, 4.2))

@@ -11,8 +11,10 @@ Tables and keys (SI units; see README "Scene format"):
   [solver]     preset, nodes, integrator, model, rod, precision, tol, max_iter, max_step, jacobian,
                continuation, specialize, error_estimate, threads, driver, kink_loads, tendon_states
   [dynamics]   dt, alpha, steps, damping_shear, damping_bending, drag, shapes_every
-  [control]    target (or target_tensions: the static tip there), method, input_model, gain_c,
-               gain_k, epsilon, phi, tension_max, model_every (see tdcr_warp.control)
+  [control]    target (or target_tensions / target_displacements: the static tip there, or path),
+               method, input_model, gain_c, gain_k, epsilon, phi, tension_max, model_every,
+               gain_i, command ("tension" | "displacement"), displacement_range ([lo, hi], m)
+               (see tdcr_warp.control)
   [ik]         targets (B rows of 3, m), target_rotations (B 3x3 matrices), tension_max (N),
                displacement_range ([lo, hi], m), tol (m), max_iter (see tdcr_warp.ik)
   [hardware]   servo_columns (the measurement CSV's column of each tendon), marker_offset and
@@ -46,7 +48,7 @@ ACTUATION_KEYS = {"tensions", "displacements", "slip", "steps"}
 STEP_KEYS = {"start", "tensions"}
 DYNAMICS_KEYS = {"dt", "alpha", "steps", "damping_shear", "damping_bending", "drag", "shapes_every"}
 CONTROL_KEYS = {"target", "target_tensions", "path", "method", "input_model", "gain_c", "gain_k", "epsilon", "phi",
-                "tension_max", "model_every", "gain_i"}
+                "tension_max", "model_every", "gain_i", "command", "displacement_range", "target_displacements"}
 SOLVER_KEYS = {f.name for f in fields(StaticOptions)} | {"preset"}
 IK_KEYS = {"targets", "target_rotations", "tension_max", "displacement_range", "tol", "max_iter"}
 HARDWARE_KEYS = {"servo_columns", "marker_offset", "base_offset"}
@@ -313,16 +315,22 @@ def scene_from_dict(data: dict) -> Scene:
     if control is not None:
         if dynamics is None:
             raise InputError("[control] needs a [dynamics] table (dt, steps, ...)")
-        if sum(k in control for k in ("target", "target_tensions", "path")) != 1:
-            raise InputError("[control] needs exactly one of 'target' (m), 'target_tensions' (N) or 'path' "
-                             "(a desired tip trajectory)")
+        if sum(k in control for k in ("target", "target_tensions", "target_displacements", "path")) != 1:
+            raise InputError("[control] needs exactly one of 'target' (m), 'target_tensions' (N), "
+                             "'target_displacements' (m) or 'path' (a desired tip trajectory)")
         if "path" in control:
             path_from_table(control["path"])  # checked here, built where it is used
-        for key in ("target", "target_tensions", "gain_c", "gain_k", "epsilon", "phi", "tension_max", "gain_i"):
+        for key in ("target", "target_tensions", "target_displacements", "gain_c", "gain_k", "epsilon", "phi",
+                    "tension_max", "gain_i", "displacement_range"):
             if key in control:
                 _numbers(control[key], f"[control].{key}")
         if "target_tensions" in control:
             check_tensions(robot, control["target_tensions"], "[control].target_tensions")
+        if "target_displacements" in control:
+            check_displacements(robot, _numbers(control["target_displacements"], "[control].target_displacements"),
+                                tensions.shape[0], "[control].target_displacements")
+        if control.get("command", "tension") not in ("tension", "displacement"):
+            raise InputError(f"[control].command must be 'tension' or 'displacement', got {control['command']!r}")
         if "model_every" in control:
             _integer(control["model_every"], "[control].model_every")
     B = tensions.shape[0]

@@ -169,7 +169,11 @@ def linearise(sh, tau: np.ndarray, tables: Tables, lo: int, hi: int, precision: 
 
     Returns ``tip_jacobian`` (b, 6, K): d[p(L), theta] / d(tension [N] of a tendon under
     tension control, displacement [m] of one under displacement control); ``tip_compliance``
-    (b, 6, 6): d[p(L), theta] / d[F_tip, M_tip]; ``parameter_jacobian`` (b, 6, P) per unit of
+    (b, 6, 6): d[p(L), theta] / d[F_tip, M_tip]; ``tension_jacobian`` (b, K, K): d(tension at the
+    motor [N] of tendon k) / d(command of tendon l) (a slack tendon's row is the derivative of its
+    unknown as if it were taut: the caller zeroes it); ``slack_jacobian`` (b, K, K): d(slack
+    length [m] of displaced tendon k) / d(command of l), for the rows of slack tendons (the
+    caller zeroes the others); ``parameter_jacobian`` (b, 6, P) per unit of
     each parameter; ``unknowns_jacobian`` J (b, nu, nu) at x*; ``integrations`` (b,) spent;
     with ``shapes`` also ``base`` and ``fields`` (the node arrays of x* and, per base-wrench
     unknown, of its probe above and (central differences) below or None, and their steps
@@ -241,7 +245,19 @@ def linearise(sh, tau: np.ndarray, tables: Tables, lo: int, hi: int, precision: 
         except np.linalg.LinAlgError:  # a singular rod: NaN for it alone
             dx = np.stack([_solve_or_nan(J[i], D[i]) for i in range(b)])
         dY = Y + Yx @ dx
-    out = {"tip_jacobian": dY[:, :, :K], "tip_compliance": dY[:, :, K:K + 6], "unknowns_jacobian": J,
+    # d base tension / d command: 1 for tension control, fs dx / dq for a taut displaced tendon;
+    # a slack one's unknown x measures its slack, -x slope L (kernels/rod.py length_residuals)
+    dtau, dslack = np.zeros((b, K, K)), np.zeros((b, K, K))
+    slope = np.broadcast_to(tables.rows("tendon", lo, hi)[..., layout.T_SLACK_SLOPE], (b, K))
+    for k in range(K):
+        if tmode[k] >= 0:
+            dtau[:, k] = fs[:, None] * dx[:, 6 + tmode[k], :K]
+            dslack[:, k] = -(slope[:, k] * L)[:, None] * dx[:, 6 + tmode[k], :K]
+        else:
+            dtau[:, k, k] = 1.0
+    out = {"tip_jacobian": dY[:, :, :K], "tip_compliance": dY[:, :, K:K + 6], "tension_jacobian": dtau,
+           "slack_jacobian": dslack,
+           "unknowns_jacobian": J,
            "parameter_jacobian": dY[:, :, K + 6:], "integrations": np.full(b, spent)}
     if shapes:
         out |= {"base": base, "fields": fields, "field_steps": hx[:, :6]}

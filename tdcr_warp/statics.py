@@ -52,7 +52,10 @@ class StaticSolution:
     [p(L) [m], theta [rad]], theta the world-frame rotation vector of a small tip rotation):
     tip_jacobian (B, 6, K) d pose / d command, per tendon its tension [N] under tension control
     or its motor displacement [m] under displacement control; tip_compliance (B, 6, 6) d pose /
-    d [F_tip [N], M_tip [N m]] (world frame); parameter_jacobian (B, 6, P) d pose / d parameter
+    d [F_tip [N], M_tip [N m]] (world frame); tension_jacobian (B, K, K) d tendon_tension_base[k] /
+    d command[l] (the identity for tension control; zero rows for slack tendons); slack_jacobian
+    (B, K, K) d (slack length [m] of slack tendon k) / d command[l] (zero rows for taut tendons);
+    parameter_jacobian (B, 6, P) d pose / d parameter
     (units of each parameter, ``parameter_names``). Stability (``stability``): stability_index
     (B,) the number of unstable directions (0: stable; -1: not assessed: not converged,
     friction, or point-model tendons); lagrangian_error (B,) the check of the test (small:
@@ -101,6 +104,8 @@ class StaticSolution:
     tip_error_estimate: np.ndarray | None = None
     tip_jacobian: np.ndarray | None = None
     tip_compliance: np.ndarray | None = None
+    tension_jacobian: np.ndarray | None = None
+    slack_jacobian: np.ndarray | None = None
     parameter_jacobian: np.ndarray | None = None
     parameter_names: tuple = ()
     stability_index: np.ndarray | None = None
@@ -396,7 +401,7 @@ class StaticProblem:
         tendon = tendon_results(tables, out, x, tau, slip, profile is not None)
         if linear:
             bad = ~out["converged"]
-            for k in ("tip_jacobian", "tip_compliance", "parameter_jacobian"):
+            for k in ("tip_jacobian", "tip_compliance", "tension_jacobian", "slack_jacobian", "parameter_jacobian"):
                 out[k][bad] = np.nan
             out["parameter_names"] = tuple(parameters)
             if stability != "off":
@@ -418,6 +423,8 @@ class StaticProblem:
         lin = linearise(sh, tau, t, lo, hi, o.precision, ptables, base=base, shapes=assess)
         b = hi - lo
         out = {k: lin[k] for k in ("tip_jacobian", "tip_compliance", "parameter_jacobian")}
+        out["tension_jacobian"] = np.where(taut[:, :, None], lin["tension_jacobian"], 0.0)  # slack: no tension
+        out["slack_jacobian"] = np.where(taut[:, :, None], 0.0, lin["slack_jacobian"])
         if stability != "off":
             index, lag = np.full(b, -1, dtype=np.int64), np.full(b, np.nan)
             if assess:
