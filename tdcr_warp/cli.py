@@ -1,6 +1,6 @@
 """Command line: ``tdcr-warp static|simulate|control|ik SCENE.toml``, the sweeps
-``tdcr-warp montecarlo|workspace|gain-grid SCENE.toml`` and measured robots
-``tdcr-warp fit|predict SCENE.toml DATA.csv``.
+``tdcr-warp montecarlo|workspace|gain-grid SCENE.toml``, the gain search
+``tdcr-warp search SCENE.toml`` and measured robots ``tdcr-warp fit|predict SCENE.toml DATA.csv``.
 
 Exit status: 0 every rod converged; 1 some rods failed (outputs written, reasons recorded);
 2 bad input (the message names the field and the value, no traceback); 130 interrupted (Ctrl-C:
@@ -538,6 +538,103 @@ def cmd_sweep(args) -> int:
     return 0
 
 
+def _grid_reference(path: str, gains: list[str], dt: float, duration: float) -> dict:
+    """The best run of the finished gain-grid sweep in ``path`` (its summary.json), with the
+    search's objective of it (tdcr_warp.gainsearch.gain_objective): ``search --grid``."""
+    from .gainsearch import gain_objective
+    from .store import read_manifest
+
+    out = Path(path)
+    man = read_manifest(out)
+    if man is None or man.get("job") != "gain-grid" or man.get("state") != "complete":
+        raise InputError(f"--grid {path!r}: not a finished gain-grid sweep (tdcr-warp gain-grid SCENE --out {path})")
+    if sorted(man["fields"]) != sorted(gains):
+        raise InputError(f"--grid {path!r}: its grid is over {man['fields']}, the search over {gains}")
+    try:
+        summary = json.loads((out / "summary.json").read_text())
+    except (OSError, ValueError) as e:
+        raise InputError(f"--grid {path!r}: cannot read its summary.json: {e}") from None
+    best = summary["best"]
+    settle, error = (float("inf") if best[k] is None else best[k] for k in ("settling_time", "final_error"))
+    f = gain_objective(best["final_error"] is not None, settle, best["chatter"], error, dt=dt, duration=duration)
+    return {"path": str(out), "closed_loops": summary["rods"], "wall_time_s": summary["wall_time_s"],
+            "best": best | {"objective": float(f)}}
+
+
+def cmd_search(args) -> int:
+    """CMA-ES over the [search] gains, each generation one batch of closed loops
+    (tdcr_warp.gainsearch); with --grid beside the best of a finished gain-grid sweep."""
+    from .gainsearch import search_gains
+    from .plotting import plot_search
+    from .scene import load_scene, scene_from_dict
+
+    base = _apply_overrides(load_scene(args.scene), args)
+    if base.search is None or base.dynamics is None:
+        raise InputError(f"{args.scene}: search needs [dynamics], [control] and [search] tables")
+    data = dict(base.source)
+    if any(getattr(args, k) is not None for k in ("nodes", "integrator", "model", "precision")):
+        data["solver"] = {k: v for k, v in vars(base.options).items() if v is not None}
+    scene = replace(scene_from_dict(data), text=base.text)
+    opts = scene.search | ({} if args.budget is None else {"budget": args.budget})
+    spec = scene.dynamics
+    duration = spec.steps * spec.dt
+    grid = None if args.grid is None else _grid_reference(args.grid, list(opts["ranges"]), spec.dt, duration)
+    out = _out_dir(args, Path("out") / f"{Path(args.scene).stem}_search", "results.json")
+    bar = None if args.quiet else Progress(opts["budget"], 1, rate_unit="loops/s")
+    done = {"loops": 0, "failed": 0, "generations": 0}
+
+    def step(i: int, n: int) -> None:
+        bar.update(done["loops"], done["failed"], f" (generation {done['generations'] + 1}: step {i}/{n})")
+
+    def generation(res) -> None:
+        done.update(loops=res.closed_loops, failed=int((~res.candidates["ok"]).sum()), generations=res.generations)
+        bar.update(res.closed_loops, done["failed"], f" (generation {res.generations}, best {res.objective:.4f})")
+
+    t0 = time.perf_counter()
+    try:
+        res = search_gains(replace(scene, search=opts), device=args.device, progress=step if bar else None,
+                           on_generation=generation if bar else None)
+    finally:
+        if bar:
+            bar.close()
+    wall = time.perf_counter() - t0
+    failed = int((~res.candidates["ok"]).sum())
+    loops_at = np.array([h["closed_loops"] for h in res.history])[res.candidates["generation"] - 1]
+    plot_search(res.history, (loops_at, res.candidates["objective"]),
+                None if grid is None else (grid["best"]["objective"], grid["closed_loops"]), duration + spec.dt,
+                out / "search.png")
+    results = {
+        "scene": str(args.scene), "settings": _settings(scene, args, args.device or "default")
+        | {"dt": spec.dt, "alpha": spec.alpha, "steps": spec.steps},
+        "gains": list(opts["ranges"]), "ranges": {g: list(r) for g, r in opts["ranges"].items()},
+        "budget": opts["budget"], "population": res.population, "seed": opts["seed"], "sigma": opts["sigma"],
+        "closed_loops": res.closed_loops, "failed_loops": failed, "generations": res.generations,
+        "restarts": res.restarts, "wall_time_s": wall,
+        "best": {"gains": res.gains, "objective": res.objective, **res.metrics}, "history": res.history,
+        "objective_note": "settled: settling time + (dt/2) c/(c + 1e-3 N) (c: chatter); outside the 0.5 mm band at "
+                          "the end: duration + dt + e/(e + 5e-4 m) (e: final error); a failed step: duration + dt + "
+                          "1; lower is better, in the gain grid's order (tdcr_warp.gainsearch)",
+    }
+    if grid is not None:
+        results["grid"] = grid | {"search_at_least_as_good": res.objective <= grid["best"]["objective"]}
+    _write_json(out / "results.json", results)
+
+    def settle(t):
+        return f"{t:.3f} s" if t is not None and np.isfinite(t) else "never"
+    m = res.metrics
+    print(f"search: {res.closed_loops:,} closed loops in {res.generations} generations ({res.restarts} restarts), "
+          f"{wall:.1f} s, {failed} failed")
+    print(f"best gains {res.gains}: settling {settle(m['settling_time'])}, final error "
+          f"{m['final_error'] * 1e3:.3f} mm, chatter {m['chatter']:.2e} N")
+    if grid is not None:
+        g = grid["best"]
+        verdict = "at least as good" if results["grid"]["search_at_least_as_good"] else "worse"
+        print(f"grid ({grid['closed_loops']:,} closed loops): best gains {g['gains']}: settling "
+              f"{settle(g['settling_time'])}, chatter {g['chatter']:.2e} N; the search is {verdict}")
+    print(f"wrote {out}/results.json, search.png")
+    return 0
+
+
 def _linearised(data: dict, device, summary: dict) -> dict:
     """The first-order tip spread of the Monte-Carlo scene (tdcr_warp.uncertainty) beside the
     sampled one: per axis the standard deviations [m] and their ratio, or why it is not there."""
@@ -584,6 +681,8 @@ def build_parser() -> argparse.ArgumentParser:
                            ("montecarlo", "tip distribution (and control success) under [[uncertainty]]"),
                            ("workspace", "tip cloud over a [sweep] of tensions"),
                            ("gain-grid", "controller metrics over a [sweep.grid] of control gains"),
+                           ("search", "CMA-ES over the [search.ranges] control gains, a batch of closed loops a "
+                                      "generation"),
                            ("ik", "inverse kinematics: tendon commands for the [ik] targets"),
                            ("predict", "predict measured tips (a scene with [hardware], a keypoint CSV)"),
                            ("fit", "calibrate a [hardware] scene on keypoint CSVs; writes fitted.toml")):
@@ -617,6 +716,10 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--quiet", action="store_true", help="no progress bar, no compile notice")
         p.add_argument("-v", "--verbose", action="store_true",
                        help="also Warp's line per kernel module loaded or compiled, with its time")
+        if name == "search":
+            p.add_argument("--budget", type=_positive_int, help="closed loops to spend (default [search].budget)")
+            p.add_argument("--grid", help="a finished gain-grid sweep folder over the same gains: its best run "
+                                          "beside the search's (results.json, search.png)")
         if name in ("montecarlo", "workspace", "gain-grid"):
             p.add_argument("--chunk", type=int, help="rods per chunk (default [sweep].chunk)")
             p.add_argument("--resume", action="store_true", help="continue an interrupted sweep in --out")
@@ -668,7 +771,7 @@ def main(argv=None) -> int:
                 raise InputError(f"--device {args.device!r}: {e}") from None
         cmds = {"static": cmd_static, "simulate": cmd_simulate, "control": cmd_control, "montecarlo": cmd_sweep,
                 "workspace": cmd_sweep, "gain-grid": cmd_sweep, "ik": cmd_ik, "predict": cmd_predict,
-                "fit": cmd_fit}
+                "fit": cmd_fit, "search": cmd_search}
         return cmds[args.command](args)
     except KeyboardInterrupt:
         Progress.end_line()

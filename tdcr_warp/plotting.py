@@ -401,3 +401,29 @@ def plot_prediction(measured: np.ndarray, predicted: np.ndarray, converged: np.n
     ax.grid(alpha=0.3)
     fig.tight_layout()
     _save(fig, path)
+
+
+def plot_search(history: list[dict], candidates: tuple, grid: tuple | None, settled_below: float, path: Path) -> None:
+    """A gain search's best-so-far objective against closed loops spent (``history``: per
+    generation ``closed_loops`` and ``best_objective``), each candidate's objective (``candidates``:
+    (closed loops spent after its generation, objective)), the objective value above which runs
+    did not settle (``settled_below``) and, with ``grid`` = (objective, closed loops), the exhaustive
+    grid's best as a line and a point at its cost."""
+    fig, ax = plt.subplots(figsize=(7.5, 4.5))
+    loops, f = candidates
+    ax.scatter(loops, f, s=5, alpha=0.3, color="C0", label="candidates")
+    x = [h["closed_loops"] for h in history]
+    ax.step(x, [h["best_objective"] for h in history], where="post", color="C1", label="search: best so far")
+    if grid is not None:
+        ax.axhline(grid[0], color="C3", ls="--", lw=1, label="grid's best")
+        ax.plot([grid[1]], [grid[0]], "o", color="C3", label=f"grid: {grid[1]:,} closed loops")
+    ax.axhline(settled_below, color="0.5", lw=0.8)
+    ax.text(x[0], settled_below, " unsettled above", va="bottom", fontsize=8, color="0.4")
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel("closed loops spent")
+    ax.set_ylabel("objective (settled: settling time [s])")
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    _save(fig, path)

@@ -19,12 +19,15 @@ Tables and keys (SI units; see README "Scene format"):
                displacement_range ([lo, hi], m), tol (m), max_iter (see tdcr_warp.ik)
   [hardware]   servo_columns (the measurement CSV's column of each tendon), marker_offset and
                base_offset (world frame, m) (see tdcr_warp.hardware)
+  [search]     budget (closed loops), population, seed, sigma, [search.ranges] gain = [lo, hi]
+               (see tdcr_warp.gainsearch)
 A robot scalar may be a list of B numbers and a vector a list of B vectors (per-rod values).
 Every error is an :class:`InputError` naming the table, the key and the value.
 """
 
 from __future__ import annotations
 
+import re
 import tomllib
 from dataclasses import dataclass, fields, replace
 from pathlib import Path
@@ -52,8 +55,11 @@ CONTROL_KEYS = {"target", "target_tensions", "path", "method", "input_model", "g
 SOLVER_KEYS = {f.name for f in fields(StaticOptions)} | {"preset"}
 IK_KEYS = {"targets", "target_rotations", "tension_max", "displacement_range", "tol", "max_iter"}
 HARDWARE_KEYS = {"servo_columns", "marker_offset", "base_offset"}
+SEARCH_KEYS = {"ranges", "budget", "population", "seed", "sigma"}
+# the gains a search ranges over: control.<gain_c|gain_k|gain_i> (every component, or [c] one), epsilon, phi
+SEARCH_GAINS = re.compile(r"control\.(?:(?:gain_c|gain_k|gain_i)(?:\[[0-2]\])?|epsilon|phi)")
 TABLES = {"robot", "tendons", "loads", "actuation", "solver", "dynamics", "control", "sweep", "uncertainty", "ik",
-          "hardware", "display"}
+          "hardware", "display", "search"}
 MAX_DEPTH = 16  # tables and lists nested deeper than any scene needs (a handful) are refused
 
 
@@ -89,6 +95,7 @@ class Scene:
     ik: dict | None = None
     hardware: dict | None = None
     display: dict | None = None  # the [display] table, checked (tdcr_warp.drawing)
+    search: dict | None = None  # the [search] table, checked (search_options; tdcr_warp.gainsearch)
     text: str | None = None  # the TOML file's content (load_scene; None for a scene made from a dict)
 
     def static_command(self) -> dict:
@@ -189,6 +196,57 @@ def _build(kind, kw: dict, where: str):
         return kind(**kw)
     except InputError as e:
         raise InputError(f"{where}: {e}") from None
+
+
+def search_options(table: dict, where: str = "[search]") -> dict:
+    """The checked options of a gain search: a scene's [search] table, or (``where`` = "") the
+    same options given as arguments. ``ranges`` {gain: [lo, hi]} with 0 < lo < hi (the search is
+    in log space; gains as SEARCH_GAINS, a vector gain without an index sets every component),
+    ``budget`` closed loops (>= 1), ``population`` (>= 4: CMA-ES's weights need two parents;
+    None: its default 4 + floor(3 ln d) for d gains), ``seed`` (0 <= seed < 2**32, default 0),
+    ``sigma`` (the initial step as a fraction of each log range, in (0, 1], default 0.3).
+    Returns them with ranges as {gain: (lo, hi)}; an InputError names the key and the value."""
+    def name(key: str) -> str:
+        return f"{where}.{key}" if where else key
+
+    if not isinstance(table, dict):
+        raise InputError(f"{where or 'the search options'} must be a table, got {table!r}")
+    _no_unknown(table, SEARCH_KEYS, where or "the search options")
+    where_r = f"[{where.strip('[]')}.ranges]" if where else "ranges"
+    raw = table.get("ranges")
+    if not isinstance(raw, dict) or not raw:
+        raise InputError(f"{where_r}: expected a table of gain = [lo, hi] (at least one), got {raw!r}")
+    ranges = {}
+    for gain, r in raw.items():
+        if not (isinstance(gain, str) and SEARCH_GAINS.fullmatch(gain)):
+            raise InputError(f"{where_r}: unknown gain {gain!r} (known: control.gain_c, control.gain_k, "
+                             "control.gain_i, each whole or one component [0-2], control.epsilon, control.phi)")
+        if not (isinstance(r, (list, tuple)) and len(r) == 2
+                and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in r)):
+            raise InputError(f"{where_r}.{gain!r}: expected [lo, hi], got {r!r}")
+        lo, hi = float(r[0]), float(r[1])
+        if not (0 < lo < hi < np.inf):
+            raise InputError(f"{where_r}.{gain!r}: expected 0 < lo < hi (the search is in log space), got {r!r}")
+        ranges[gain] = (lo, hi)
+    for gain in ranges:
+        if "[" in gain and gain.split("[")[0] in ranges:
+            raise InputError(f"{where_r}: {gain!r} and {gain.split('[')[0]!r} both range over that component")
+    out = {"ranges": ranges}
+    for key, default, least, most in (("budget", None, 1, None), ("population", None, 4, None),
+                                      ("seed", 0, 0, 2**32 - 1)):
+        v = table.get(key, default)
+        if key == "budget" and v is None:
+            raise InputError(f"missing key 'budget' in {where or 'the search options'} (closed loops to spend)")
+        if v is not None and (not isinstance(v, int) or isinstance(v, bool) or v < least
+                              or (most is not None and v > most)):
+            span = f">= {least}" if most is None else f"in [{least}, {most}]"
+            raise InputError(f"{name(key)} must be an integer {span}, got {v!r}")
+        out[key] = v
+    sigma = table.get("sigma", 0.3)
+    if not (isinstance(sigma, (int, float)) and not isinstance(sigma, bool) and 0 < sigma <= 1):
+        raise InputError(f"{name('sigma')} must be a number in (0, 1] (a fraction of each log range), got {sigma!r}")
+    out["sigma"] = float(sigma)
+    return out
 
 
 def scene_from_dict(data: dict) -> Scene:
@@ -362,5 +420,13 @@ def scene_from_dict(data: dict) -> Scene:
             if not (isinstance(v, list) and len(v) == 3):
                 raise InputError(f"[hardware].{key}: expected [x, y, z] in m, got {v!r}")
     display = display_options(data.get("display")) if "display" in data else None
+    search = search_options(data["search"]) if "search" in data else None
+    if search is not None:
+        if control is None:
+            raise InputError("[search] needs a [control] table (the controller whose gains it searches)")
+        for gain in search["ranges"]:
+            key = gain.split(".")[1].split("[")[0]
+            if key not in control:
+                raise InputError(f"[search.ranges].{gain!r}: give [control].{key} a value (the search varies it)")
     return Scene(robot=robot, tensions=tensions, options=options, dynamics=dynamics, source=data, control=control,
-                 displacements=displacements, slip=slip, ik=ik, hardware=hardware, display=display)
+                 displacements=displacements, slip=slip, ik=ik, hardware=hardware, display=display, search=search)

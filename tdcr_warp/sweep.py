@@ -180,8 +180,11 @@ def make_samples(spec: SweepSpec) -> dict[str, np.ndarray]:
 
 
 def fingerprint(data: dict, job_name: str, chunk: int, meta: dict | None = None) -> str:
-    """What identifies a sweep: its scene (with the sweep table), job, chunk size and options."""
-    ident = {"format": FORMAT, "job": job_name, "chunk": chunk, "scene": data, "meta": meta or {}}
+    """What identifies a sweep: its scene (with the sweep table), job, chunk size and options.
+    A [search] table (tdcr_warp.gainsearch) changes no sweep row, so it is left out: a gain grid
+    kept as a search's reference resumes whatever the search's options."""
+    scene = {k: v for k, v in data.items() if k != "search"}
+    ident = {"format": FORMAT, "job": job_name, "chunk": chunk, "scene": scene, "meta": meta or {}}
     return hashlib.sha256(json.dumps(ident, sort_keys=True, default=str).encode()).hexdigest()
 
 
