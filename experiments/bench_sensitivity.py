@@ -63,7 +63,7 @@ class DifferencesController(TipController):
             dt[:, k] += h
             J[:, :, k] = (solve_static(self.model_robot, dt, options=opts, device=self.sim.dev,
                                        initial=base).tip_position - base.tip_position) / h
-        self._static, self._J, self._p0, self._tau_lin = base, J, base.tip_position, tau.copy()
+        self._static, self._J, self._p0, self._u_lin = base, J, base.tip_position, tau.copy()
 
 
 def timed(cases: dict, repeats: int) -> dict:
