@@ -51,9 +51,11 @@ def solve_qp(H: np.ndarray, c: np.ndarray, A: np.ndarray, lo: np.ndarray, hi: np
              tol: float = 1e-7, max_iter: int = 4000, check_every: int = 25):
     """Per rod b: min 1/2 x^T H x + c^T x subject to lo <= A x <= hi (rows with lo = -inf and
     hi = inf are free). H (B, n, n) positive semidefinite, c (B, n), A (B, m, n), lo, hi (B, m).
-    x0 (B, n), y0 (B, m): a warm start (the last solution and its multipliers). Stops when every
-    rod's primal and dual residuals are below ``tol`` relative to the problem's size, or after
-    ``max_iter`` iterations. Returns x (B, n), y (B, m) and the iterations spent."""
+    x0 (B, n), y0 (B, m): a warm start (the last solution and its multipliers). A rod stops when
+    its primal and dual residuals are below ``tol`` relative to its problem's size (checked every
+    ``check_every`` iterations), or after ``max_iter`` iterations; a rod's iterations and step size
+    are its own, so its answer does not depend on the other rods of the batch. Returns x (B, n),
+    y (B, m) and the iterations the slowest rod spent."""
     B, n = c.shape
     hs = np.maximum(np.einsum("bii->b", H) / n, 1e-300)  # scale the objective to a unit diagonal
     H, c = H / hs[:, None, None], c / hs[:, None]
@@ -68,16 +70,18 @@ def solve_qp(H: np.ndarray, c: np.ndarray, A: np.ndarray, lo: np.ndarray, hi: np
     y = np.zeros(lo.shape) if y0 is None else np.array(y0, dtype=np.float64) / (hs[:, None] / np.where(live, rn, 1.0))
     z = np.clip(np.einsum("bmi,bi->bm", A, x), lo, hi)
     it = 0
+    active = np.ones(B, dtype=bool)  # rods still iterating
     while it < max_iter:
+        run = active[:, None]
         for _ in range(check_every):
             rhs = SIGMA * x - c + np.einsum("bmi,bm->bi", A, rho[:, None] * z - y)
             xt = np.einsum("bij,bj->bi", M, rhs)
             zt = np.einsum("bmi,bi->bm", A, xt)
-            x = ALPHA * xt + (1 - ALPHA) * x
+            x = np.where(run, ALPHA * xt + (1 - ALPHA) * x, x)
             zr = ALPHA * zt + (1 - ALPHA) * z
             z_new = np.clip(zr + y / rho[:, None], lo, hi)
-            y = y + rho[:, None] * (zr - z_new)
-            z = z_new
+            y = np.where(run, y + rho[:, None] * (zr - z_new), y)
+            z = np.where(run, z_new, z)
         it += check_every
         Ax = np.einsum("bmi,bi->bm", A, x)
         Hx = np.einsum("bij,bj->bi", H, x)
@@ -86,13 +90,15 @@ def solve_qp(H: np.ndarray, c: np.ndarray, A: np.ndarray, lo: np.ndarray, hi: np
         r_d = np.abs(Hx + c + Aty).max(axis=1)
         s_p = np.maximum(np.abs(Ax).max(axis=1), np.abs(z).max(axis=1))
         s_d = np.maximum.reduce([np.abs(Hx).max(axis=1), np.abs(Aty).max(axis=1), np.abs(c).max(axis=1)])
-        if ((r_p <= tol * (1 + s_p)) & (r_d <= tol * (1 + s_d))).all():
+        active &= ~((r_p <= tol * (1 + s_p)) & (r_d <= tol * (1 + s_d)))
+        if not active.any():
             break
         # balance the residuals (OSQP's rule), within a factor of 5 per update
         ratio = np.sqrt((r_p / np.maximum(s_p, 1e-300)) / np.maximum(r_d / np.maximum(s_d, 1e-300), 1e-300))
         new = np.clip(rho * np.clip(ratio, 0.2, 5.0), 1e-6, 1e6)
-        if (np.abs(np.log(new / rho)) > np.log(2.0)).any():
-            rho = new
+        update = active & (np.abs(np.log(new / rho)) > np.log(2.0))
+        if update.any():
+            rho = np.where(update, new, rho)
             M = _factor(H, A, rho)
     return x, y * (hs[:, None] / np.where(live, rn, 1.0)), it
 
