@@ -345,13 +345,14 @@ def run_closed_loop(sim: Simulator, controller: TipController, steps: int, *, pr
     progress bar, or a callable ``progress(step, steps)`` called after every step."""
     B, K = sim.B, sim.robot.n_tendons
     n1 = sim.grid.shape[1]
-    require_memory(steps * B * (8.0 * (12 + K) + 1) + (steps // shapes_every if shapes_every else 0) * B * 96.0 * n1,
+    disp = controller.command == "displacement"
+    require_memory(steps * B * (8.0 * (12 + (2 if disp else 1) * K) + 1)
+                   + (steps // shapes_every if shapes_every else 0) * B * 96.0 * n1,
                    f"steps = {steps} for {B} rod(s): the closed-loop record")
     tip = np.zeros((steps + 1, B, 3))
     vel = np.zeros((steps + 1, B, 3))
     S = np.zeros((steps + 1, B, 3))
     taus = np.zeros((steps, B, K))
-    disp = controller.command == "displacement"
     qs = np.zeros((steps if disp else 0, B, K))
     conv = np.zeros((steps, B), dtype=bool)
     desired = np.zeros((steps + 1, B, 3))
