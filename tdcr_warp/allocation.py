@@ -114,8 +114,11 @@ def allocate_displacements(bc: np.ndarray, v: np.ndarray, q_prev: np.ndarray, li
     B, K = q0.shape
     Q = np.einsum("bik,bil->bkl", bc, bc)
     TT, GG = (np.einsum("bjk,bjl->bkl", M, M) for M in (T, G))
-    lam_t, lam_g = (w * np.einsum("bkk->b", Q) / np.maximum(np.einsum("bkk->b", M), 1e-300)
-                    for w, M in ((LAM_T, TT), (LAM_G, GG)))
+    def weight(w, M):  # w |b_c|^2 / |M|^2 (0 where M is empty: no taut, or no slack, tendon)
+        tr = np.einsum("bkk->b", M)
+        return np.where(tr > 0, w * np.einsum("bkk->b", Q) / np.where(tr > 0, tr, 1.0), 0.0)
+
+    lam_t, lam_g = weight(LAM_T, TT), weight(LAM_G, GG)
     tau_free = lin["tension"] - np.einsum("bkl,bl->bk", T, q0)  # tau0 + T (q - q0) = tau_free + T q
     gap_free = lin["gap"] - np.einsum("bkl,bl->bk", G, q0)  # gap0 + G (q - q0) = gap_free + G q
     H = 2 * (Q + lam_t[:, None, None] * TT + lam_g[:, None, None] * GG)

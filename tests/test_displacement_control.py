@@ -199,3 +199,21 @@ def test_a_batch_of_different_targets_equals_each_alone():
         alone = run([t])
         assert np.abs(batch.tip_position[:, b] - alone.tip_position[:, 0]).max() <= 1e-12
         assert np.abs(batch.displacements[:, b] - alone.displacements[:, 0]).max() <= 1e-12
+
+
+def test_allocation_stays_finite_without_slack_tendons_at_any_scale():
+    """No slack tendon (G = 0) and a large input matrix: the regularisation weights stay finite
+    (a weight over an empty matrix once overflowed to inf and made the command NaN)."""
+    from tdcr_warp.allocation import allocate_displacements
+
+    rng = np.random.default_rng(1)
+    B, K = 4, 4
+    lin = {"q": np.zeros((B, K)), "tension": np.ones((B, K)), "tension_jacobian": 3e4 * np.eye(K)[None].repeat(B, 0),
+           "slack_jacobian": np.zeros((B, K, K)), "gap": np.zeros((B, K))}
+    for scale in (1.0, 1e6, 1e9):
+        bc = scale * rng.normal(size=(B, 3, K))
+        v = scale * 1e-3 * rng.normal(size=(B, 3))
+        q, _ = allocate_displacements(bc, v, np.zeros((B, K)), lin, np.full((B, K), -5e-3), np.full((B, K), 5e-3),
+                                      np.full((B, K), 8.0))
+        assert np.isfinite(q).all()
+        assert (np.abs(q) <= 5e-3).all()
