@@ -20,9 +20,9 @@ shortens; the last constraint pays it out or takes it in so that it neither brak
 (going taut under a linear model that has it slack) nor unwinds, and lam_g holds it just slack,
 ready to pull at the next refresh of the model. A taut tendon may be released past zero
 tension (then it is slack at the next refresh). The small regularisation (lam_t at 1e-6 and
-lam_g at 1e-3 of |b_c|^2, relative to |T|^2 and |G|^2) picks, out of the null space of b_c (pulling every tendon together bends nothing;
-it only raises the tensions), the least tensions at equilibrium, as the tension allocation
-picks the least tensions. Every bound is widened to admit holding the last command, so the
+lam_g at 1e-3 of |b_c|^2, relative to |T|^2 and |G|^2) picks, out of the null space of b_c
+(pulling every tendon together bends nothing; it only raises the tensions), the least tensions
+at equilibrium, as the tension allocation picks the least tensions. Every bound is widened to admit holding the last command, so the
 problem is always feasible: where the plant has drifted past a bound, the command does not go
 further.
 
@@ -114,6 +114,7 @@ def allocate_displacements(bc: np.ndarray, v: np.ndarray, q_prev: np.ndarray, li
     B, K = q0.shape
     Q = np.einsum("bik,bil->bkl", bc, bc)
     TT, GG = (np.einsum("bjk,bjl->bkl", M, M) for M in (T, G))
+
     def weight(w, M):  # w |b_c|^2 / |M|^2 (0 where M is empty: no taut, or no slack, tendon)
         tr = np.einsum("bkk->b", M)
         return np.where(tr > 0, w * np.einsum("bkk->b", Q) / np.where(tr > 0, tr, 1.0), 0.0)

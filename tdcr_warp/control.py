@@ -33,9 +33,9 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
+from .allocation import allocate_displacements
 from .dynamics import Simulator
 from .progress import Progress
-from .allocation import allocate_displacements
 from .robot import InputError, Robot, real_array, require_memory
 from .statics import reference_lengths, solve_static
 from .tippath import TipPath
@@ -192,8 +192,7 @@ class TipController:
             lo, hi = (-L / 20, L / 20) if displacement_range is None else displacement_range
         except (TypeError, ValueError):
             raise InputError(f"displacement_range must be (lo, hi) [m], got {displacement_range!r}") from None
-        self.q_lo, self.q_hi = (np.broadcast_to(per_rod(f"displacement_range[{i}]", v, B, (K,)), (B, K)).copy()
-                                for i, v in enumerate((lo, hi)))
+        self.q_lo, self.q_hi = (per_rod(f"displacement_range[{i}]", v, B, (K,)) for i, v in enumerate((lo, hi)))
         if (self.q_lo >= self.q_hi).any():
             raise InputError(f"displacement_range: lo must be below hi, got {displacement_range!r}")
         if ((self.u < self.q_lo) | (self.u > self.q_hi)).any():
@@ -237,7 +236,7 @@ class TipController:
         self._static, self._J, self._p0, self._u_lin = base, base.tip_jacobian[:, :3], base.tip_position, u.copy()
         if disp:
             gap = np.where(base.slack, self._reference - u - base.tendon_free_length, 0.0)
-            self._lin = {"q": u.copy(), "tension": base.tendon_tension_base, "tension_jacobian": base.tension_jacobian,
+            self._lin = {"q": self._u_lin, "tension": base.tendon_tension_base, "tension_jacobian": base.tension_jacobian,
                          "slack_jacobian": base.slack_jacobian,
                          "slack": base.slack, "gap": np.maximum(gap, 0.0)}
             C = base.tip_compliance

@@ -18,8 +18,9 @@ from .scene import Scene, scene_from_dict
 from .statics import solve_static
 from .tippath import path_from_table
 
-__all__ = ["SweepJob", "constant_curvature_tip", "control_job", "scene_controller", "scene_simulator", "convex_hull_2d", "failure_counts", "pareto_front",
-           "static_job", "summarize_gain_grid", "summarize_montecarlo", "summarize_workspace"]
+__all__ = ["SweepJob", "constant_curvature_tip", "control_job", "convex_hull_2d", "failure_counts", "pareto_front",
+           "scene_controller", "scene_simulator", "static_job", "summarize_gain_grid", "summarize_montecarlo",
+           "summarize_workspace"]
 
 
 def static_job(scene: Scene, device=None, shapes: bool = False) -> dict[str, np.ndarray]:

@@ -201,9 +201,9 @@ def _time_arrows(ax, x: np.ndarray, y: np.ndarray) -> None:
 
 def plot_control(run, out_dir: Path, tension_max=None, gain_c=None) -> None:
     """The report's control figures: tip displacement; tension history with its mean and the
-    tension limit ``tension_max`` (B, K) [N] (and the commanded motor displacements, if any); error norm and the phase portraits x vs x_t and e
-    vs e_t (x components, start o, end x, arrows in time's direction) with the sliding surface
-    S = e_t + C e = 0 of ``gain_c`` (B, 3) [1/s] (at most ``MAX_RODS_DRAWN`` rods)."""
+    tension limit ``tension_max`` (B, K) [N] (and the commanded motor displacements, if any);
+    error norm and the phase portraits x vs x_t and e vs e_t (x components, start o, end x, arrows
+    in time's direction) with the sliding surface S = e_t + C e = 0 of ``gain_c`` (B, 3) [1/s] (at most ``MAX_RODS_DRAWN`` rods)."""
     nb = min(run.tip_position.shape[1], MAX_RODS_DRAWN)
     t = run.time
     desired = (run.tip_position + run.error)[:, :nb]  # the target, or the desired path, over time

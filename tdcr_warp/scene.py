@@ -34,6 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .control import COMMANDS
 from .drawing import display_options
 from .tippath import path_from_table
 from .robot import (InputError, PointForce, Robot, Tendon, check_displacements, check_slip, check_tensions,
@@ -387,8 +388,8 @@ def scene_from_dict(data: dict) -> Scene:
         if "target_displacements" in control:
             check_displacements(robot, _numbers(control["target_displacements"], "[control].target_displacements"),
                                 tensions.shape[0], "[control].target_displacements")
-        if control.get("command", "tension") not in ("tension", "displacement"):
-            raise InputError(f"[control].command must be 'tension' or 'displacement', got {control['command']!r}")
+        if control.get("command", "tension") not in COMMANDS:
+            raise InputError(f"[control].command must be one of {COMMANDS}, got {control['command']!r}")
         if "model_every" in control:
             _integer(control["model_every"], "[control].model_every")
     B = tensions.shape[0]

@@ -256,9 +256,7 @@ def linearise(sh, tau: np.ndarray, tables: Tables, lo: int, hi: int, precision: 
         else:
             dtau[:, k, k] = 1.0
     out = {"tip_jacobian": dY[:, :, :K], "tip_compliance": dY[:, :, K:K + 6], "tension_jacobian": dtau,
-           "slack_jacobian": dslack,
-           "unknowns_jacobian": J,
-           "parameter_jacobian": dY[:, :, K + 6:], "integrations": np.full(b, spent)}
+           "slack_jacobian": dslack, "unknowns_jacobian": J, "parameter_jacobian": dY[:, :, K + 6:], "integrations": np.full(b, spent)}
     if shapes:
         out |= {"base": base, "fields": fields, "field_steps": hx[:, :6]}
     return out

@@ -55,8 +55,8 @@ class StaticSolution:
     d [F_tip [N], M_tip [N m]] (world frame); tension_jacobian (B, K, K) d tendon_tension_base[k] /
     d command[l] (the identity for tension control; zero rows for slack tendons); slack_jacobian
     (B, K, K) d (slack length [m] of slack tendon k) / d command[l] (zero rows for taut tendons);
-    parameter_jacobian (B, 6, P) d pose / d parameter
-    (units of each parameter, ``parameter_names``). Stability (``stability``): stability_index
+    parameter_jacobian (B, 6, P) d pose / d parameter (units of each parameter,
+    ``parameter_names``). Stability (``stability``): stability_index
     (B,) the number of unstable directions (0: stable; -1: not assessed: not converged,
     friction, or point-model tendons); lagrangian_error (B,) the check of the test (small:
     trustworthy); with "stable" also branch (B,) int8 (0: as solved, 1: the solve landed on an
