@@ -68,6 +68,27 @@ def static_batch(batch: int, nodes: int, inner: int):
             {"converged": float(sol.converged.mean()), "iterations_mean": float(sol.iterations.mean())})
 
 
+def sens_batch(batch: int, nodes: int, inner: int):
+    """B rods with their sensitivities (tip, tension and slack Jacobians), random commands: rods/s
+    under tension control (tensions in [0, 3] N) and under displacement control (elastic wires at
+    1 N of pretension, displacements in [-1, 1.5] mm), alternated, median of `inner`."""
+    rng = np.random.default_rng(2)
+    disp = tw.Robot(tendons=[tw.Tendon(offset=o, control="displacement", pretension=1.0, compliance=2.7e-5)
+                             for o in OFFSETS], **ROBOT)
+    cases = {"sens_b_tension": (robot(), dict(tensions=rng.uniform(0.0, 3.0, (batch, 4)))),
+             "sens_b_displacement": (disp, dict(tensions=np.zeros((batch, 4)),
+                                                displacements=rng.uniform(-1e-3, 1.5e-3, (batch, 4))))}
+    for rob, kw in cases.values():
+        tw.solve_static(rob, nodes=nodes, sensitivities=True, **{k: v[:2] for k, v in kw.items()})
+    times = {k: [] for k in cases}
+    for _ in range(inner):
+        for key, (rob, kw) in cases.items():
+            t0 = time.perf_counter()
+            sol = tw.solve_static(rob, nodes=nodes, sensitivities=True, **kw)
+            times[key].append(time.perf_counter() - t0)
+    return {k: batch / float(np.median(v)) for k, v in times.items()}, {"converged": float(sol.converged.mean())}
+
+
 def dyn1(nodes: int, warmup: int, steps: int, tension: list[float]):
     """One rod from rest at zero tension, `warmup` steps under `tension`, then `steps` more timed:
     the real-time factor (simulated seconds per wall second)."""
@@ -120,8 +141,8 @@ def startup(scene: str):
     return {"cli_cold": cold, "cli_warm": warm, "import": imp}, {}
 
 
-MEASUREMENTS = {"static1": static1, "static_batch": static_batch, "dyn1": dyn1, "dyn_batch": dyn_batch,
-                "startup": startup}
+MEASUREMENTS = {"static1": static1, "static_batch": static_batch, "sens_batch": sens_batch, "dyn1": dyn1,
+                "dyn_batch": dyn_batch, "startup": startup}
 
 
 def source_digest() -> str:

@@ -16,6 +16,8 @@ Measurements (the report's robot: 4 tendons, gravity; RK4, coupled, float64, CPU
                 per call, with a new random tension row each call and with the same row
   static_batch  B rods, random tensions in [0, 3] N, N = 20, default tol, threads = 1 and 2:
                 rods/s and the 2-thread/1-thread ratio
+  sens_batch    B / 4 rods with sensitivities (tip, tension and slack Jacobians), N = 20: rods/s
+                under tension control and under displacement control (elastic wires)
   dyn1          one rod (dt 5 ms, alpha -0.2, N = 50) from rest, stepped under [1.5, 0.3, 0, 0] N:
                 real-time factor (simulated s per wall s) of 200 steps after 10 warm-up steps
   dyn_batch     B rods, experiments/bench_dynamics.py's scenario, N = 50, 20 steps: rod-steps/s
@@ -23,7 +25,7 @@ Measurements (the report's robot: 4 tendons, gravity; RK4, coupled, float64, CPU
                 again (warm), and `python -c "import tdcr_warp"`: wall seconds
 
     python experiments/bench_ab.py --base-python /tmp/base_venv/bin/python [--new-python PY]
-        [--repeats 5] [--batch 4096] [--smoke] [--out results/bench_ab.json]
+        [--repeats 5] [--batch 4096] [--only MEASUREMENT ...] [--smoke] [--out results/bench_ab.json]
 
 --new-python defaults to this Python; with --smoke (tiny sizes, 1 repeat) --base-python does too.
 A repeat takes 2-3 minutes at B = 4096 on the shared 2-core machine, most of it in dyn_batch.
@@ -61,6 +63,9 @@ METRICS = {
     "static_b_t1": ("static_batch", "B={batch} static N={nodes}, 1 thread", "rods/s", "higher"),
     "static_b_t2": ("static_batch", "B={batch} static N={nodes}, 2 threads", "rods/s", "higher"),
     "static_b_t2_over_t1": ("static_batch", "B={batch} static, 2-thr/1-thr", "x", "higher"),
+    "sens_b_tension": ("sens_batch", "B={batch} static N={nodes} + Jacobians, tension", "rods/s", "higher"),
+    "sens_b_displacement": ("sens_batch", "B={batch} static N={nodes} + Jacobians, displacement", "rods/s",
+                            "higher"),
     "dyn1_rtf": ("dyn1", "1 rod dynamics N={nodes}, real-time", "sim s/s", "higher"),
     "dyn_b": ("dyn_batch", "B={batch} dynamics N={nodes}", "rod-steps/s", "higher"),
     "cli_cold": ("startup", "tdcr-warp static, cold cache", "s", "lower"),
@@ -69,17 +74,22 @@ METRICS = {
 }
 
 
+MEASUREMENT_NAMES = ("static1", "static_batch", "sens_batch", "dyn1", "dyn_batch", "startup")
+
+
 def plan(batch: int, smoke: bool) -> dict[str, dict]:
     """Each measurement's worker arguments."""
     tension = [1.5, 0.3, 0.0, 0.0]
     if smoke:
         return {"static1": dict(nodes=20, calls=3, warmup=1),
                 "static_batch": dict(batch=16, nodes=20, inner=1),
+                "sens_batch": dict(batch=8, nodes=20, inner=1),
                 "dyn1": dict(nodes=10, warmup=2, steps=3, tension=tension),
                 "dyn_batch": dict(batch=8, nodes=10, steps=6),
                 "startup": dict(scene=str(SCENE))}
     return {"static1": dict(nodes=20, calls=200, warmup=5),
             "static_batch": dict(batch=batch, nodes=20, inner=3),
+            "sens_batch": dict(batch=batch // 4, nodes=20, inner=3),
             "dyn1": dict(nodes=50, warmup=10, steps=200, tension=tension),
             "dyn_batch": dict(batch=batch, nodes=50, steps=20),
             "startup": dict(scene=str(SCENE))}
@@ -112,6 +122,8 @@ def summarise(runs: dict, labels: dict) -> dict:
     the medians, its speed-up, and the speed-ups of the back-to-back (old, new) pairs of each repeat."""
     table = {}
     for key, (name, _, unit, better) in METRICS.items():
+        if name not in runs:  # not measured (--only)
+            continue
         row = {"label": labels[key], "unit": unit, "better": better}
         for side in SIDES:
             values = [r["metrics"][key] for r in runs[name][side] if "metrics" in r]
@@ -172,6 +184,7 @@ def main(argv=None) -> int:
     ap.add_argument("--repeats", type=int, default=5, help="old/new rounds (default 5)")
     ap.add_argument("--batch", type=int, default=4096, help="rods in the batched measurements")
     ap.add_argument("--smoke", action="store_true", help="tiny sizes, 1 repeat (for the test suite)")
+    ap.add_argument("--only", nargs="+", choices=MEASUREMENT_NAMES, help="run these measurements only")
     ap.add_argument("--out", default=str(ROOT / "results" / "bench_ab.json"))
     args = ap.parse_args(argv)
     if args.base_python is None and not args.smoke:
@@ -179,7 +192,8 @@ def main(argv=None) -> int:
     pythons = {"old": args.base_python or sys.executable, "new": args.new_python}
     repeats = 1 if args.smoke else args.repeats
     work = plan(args.batch, args.smoke)
-    labels = {key: label.format(**work[name]) for key, (name, label, _, _) in METRICS.items()}
+    work = {k: v for k, v in work.items() if args.only is None or k in args.only}
+    labels = {key: label.format(**work[name]) for key, (name, label, _, _) in METRICS.items() if name in work}
 
     runs = {name: {side: [] for side in SIDES} for name in work}
     t_start = time.perf_counter()
