@@ -21,8 +21,9 @@ import time
 from pathlib import Path
 
 import numpy as np
-import tdcr_warp as tw
 import tdcr_warp.kernels
+
+import tdcr_warp as tw
 
 MARKER = "AB_RESULT "
 OFFSETS = [(0.01, 0.0), (0.0, 0.01), (-0.01, 0.0), (0.0, -0.01)]

@@ -26,8 +26,8 @@ sys.path[:0] = [str(ROOT / "experiments")]
 
 from _common import metadata, write_report  # noqa: E402
 
-from tdcr_warp.jobs import SweepJob  # noqa: E402
-from tdcr_warp.sweep import run_sweep  # noqa: E402
+from tdcr_warp.apps.jobs import SweepJob  # noqa: E402
+from tdcr_warp.apps.sweep import run_sweep  # noqa: E402
 
 SCENE = {
     "robot": {"length": 0.5, "youngs_modulus": 190e9, "poisson_ratio": 0.3, "radius": 1e-3, "density": 7800.0},

@@ -34,13 +34,13 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import ROOT, metadata, write_report  # noqa: E402
 
 import tdcr_warp as tw  # noqa: E402
-import tdcr_warp.jobs as jobs  # noqa: E402
-from tdcr_warp.chunk import apply_rows  # noqa: E402
-from tdcr_warp.control import TipController  # noqa: E402
-from tdcr_warp.ik import solve_ik  # noqa: E402
-from tdcr_warp.scene import scene_from_dict  # noqa: E402
-from tdcr_warp.statics import reference_lengths, solve_static  # noqa: E402
-from tdcr_warp.sweep import SweepSpec, make_samples  # noqa: E402
+import tdcr_warp.apps.jobs as jobs  # noqa: E402
+from tdcr_warp.apps.chunk import apply_rows  # noqa: E402
+from tdcr_warp.apps.control import TipController  # noqa: E402
+from tdcr_warp.apps.ik import solve_ik  # noqa: E402
+from tdcr_warp.apps.sweep import SweepSpec, make_samples  # noqa: E402
+from tdcr_warp.io.scene import scene_from_dict  # noqa: E402
+from tdcr_warp.physics.statics import reference_lengths, solve_static  # noqa: E402
 
 OFFSETS = [(0.01, 0.0), (0.0, 0.01), (-0.01, 0.0), (0.0, -0.01)]
 

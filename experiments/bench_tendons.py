@@ -24,7 +24,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import ROOT, metadata, write_report  # noqa: E402
 
 import tdcr_warp as tw  # noqa: E402
-from tdcr_warp.statics import reference_lengths  # noqa: E402
+from tdcr_warp.physics.statics import reference_lengths  # noqa: E402
 
 OFFSETS = [(0.01, 0.0), (0.0, 0.01), (-0.01, 0.0), (0.0, -0.01)]
 

@@ -4,7 +4,7 @@ against the report's law on the same trajectory (sgn(S), its alpha input model a
 C = diag(15000, 1, 500), k = diag(30, 1, 5), eps = 0.005; examples/seed_control.toml), both with
 the desired velocity and acceleration in the law, tensions within [0, 8] N.
 
-Metrics per law (tdcr_warp.control.control_metrics): RMS tracking error over the whole run and
+Metrics per law (tdcr_warp.apps.control.control_metrics): RMS tracking error over the whole run and
 the largest error over its second half (after the tip has caught the circle), the lag, the
 chatter index, the saturation fraction. Writes the JSON report and docs/figures/circle_tracking.png.
 
@@ -25,10 +25,10 @@ sys.path[:0] = [str(ROOT / "experiments")]
 
 from _common import metadata, write_report  # noqa: E402
 
-from tdcr_warp.control import TipController, control_metrics, run_closed_loop  # noqa: E402
-from tdcr_warp.dynamics import Simulator  # noqa: E402
-from tdcr_warp.scene import scene_from_dict  # noqa: E402
-from tdcr_warp.tippath import path_from_table  # noqa: E402
+from tdcr_warp.apps.control import TipController, control_metrics, run_closed_loop  # noqa: E402
+from tdcr_warp.io.scene import scene_from_dict  # noqa: E402
+from tdcr_warp.model.tippath import path_from_table  # noqa: E402
+from tdcr_warp.physics.dynamics import Simulator  # noqa: E402
 
 REPORT = {"method": "smc", "input_model": "alpha", "gain_c": [15000.0, 1.0, 500.0], "gain_k": [30.0, 1.0, 5.0],
           "epsilon": 0.005, "phi": 1e-3, "tension_max": 8.0}

@@ -19,9 +19,10 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT / "experiments")]
 
-import tdcr_warp as tw  # noqa: E402
 from _common import metadata, write_report  # noqa: E402
-from tdcr_warp.control import TipController, control_metrics, run_closed_loop, static_target  # noqa: E402
+
+import tdcr_warp as tw  # noqa: E402
+from tdcr_warp.apps.control import TipController, control_metrics, run_closed_loop, static_target  # noqa: E402
 
 REPORT = dict(method="smc", input_model="alpha", gain_c=(15000.0, 1.0, 500.0), gain_k=(30.0, 1.0, 5.0),
               epsilon=0.005, tension_max=8.0)

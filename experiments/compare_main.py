@@ -55,10 +55,11 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT / "experiments")]
 
-import tdcr_warp as tw  # noqa: E402
 from _common import metadata, write_report  # noqa: E402
-from tdcr_warp.control import TipController, run_closed_loop, static_target  # noqa: E402
-from tdcr_warp.scene import load_scene  # noqa: E402
+
+import tdcr_warp as tw  # noqa: E402
+from tdcr_warp.apps.control import TipController, run_closed_loop, static_target  # noqa: E402
+from tdcr_warp.io.scene import load_scene  # noqa: E402
 
 EXAMPLES = ROOT / "examples"
 SEED_ROBOT = dict(length=0.5, youngs_modulus=190e9, poisson_ratio=0.3, radius=1e-3, density=17189.0,

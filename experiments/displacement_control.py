@@ -31,10 +31,10 @@ sys.path[:0] = [str(ROOT / "experiments")]
 
 from _common import metadata, write_report  # noqa: E402
 
-from tdcr_warp.control import control_metrics, run_closed_loop  # noqa: E402
-from tdcr_warp.jobs import scene_controller, scene_simulator  # noqa: E402
-from tdcr_warp.scene import scene_from_dict  # noqa: E402
-from tdcr_warp.statics import solve_static  # noqa: E402
+from tdcr_warp.apps.control import control_metrics, run_closed_loop  # noqa: E402
+from tdcr_warp.apps.jobs import scene_controller, scene_simulator  # noqa: E402
+from tdcr_warp.io.scene import scene_from_dict  # noqa: E402
+from tdcr_warp.physics.statics import solve_static  # noqa: E402
 
 
 def scenes(smoke: bool) -> dict[str, dict]:

@@ -45,8 +45,9 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT / "experiments")]
 
-import tdcr_warp as tw  # noqa: E402
 from _common import metadata, write_report  # noqa: E402
+
+import tdcr_warp as tw  # noqa: E402
 
 NODES = (5, 10, 20, 50, 200, 2000)
 ENVELOPE = dict(bend_max=np.pi, slender=(50.0, 500.0))
@@ -108,7 +109,7 @@ EULER = np.pi**2 / 4  # compression sum(tau) L^2 / EI bounding the displacement-
 def run_displacement(samples: int, rng, nodes: int = 20) -> dict:
     """The displacement-control envelope (module docstring): convergence from the straight-rod
     start, slack where released, and the tensions of the matching tension-control solve."""
-    from tdcr_warp.statics import reference_lengths
+    from tdcr_warp.physics.statics import reference_lengths
 
     s = sample_envelope(8 * samples, rng, **ENVELOPE)  # then ``samples`` inside, samples / 4 beyond
     EI = s["robot"]["youngs_modulus"] * np.pi * s["robot"]["radius"] ** 4 / 4

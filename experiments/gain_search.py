@@ -32,7 +32,7 @@ time is reached only at the corner C = k = 40 of the ranges, and there the chatt
 few percent with local minima, the corner eps = 0.05, phi = 0.01 among them. A first version
 (population 8, sigma 0.3, restarts only when CMA-ES converged, the package's resampling at the
 bounds replaced by clipping already) matched with seeds 0-2 but ended in that corner with seed 3
-(chatter 2.733e-9 N: worse than the grid); restarting a stagnating run (tdcr_warp.gainsearch),
+(chatter 2.733e-9 N: worse than the grid); restarting a stagnating run (tdcr_warp.apps.gainsearch),
 population 16 and sigma 0.5 fixed it, and a batch of 16 closed loops runs about twice as many
 loops a second as one of 8 (that version took 206-245 s). The grid took 656 s in an earlier run
 under heavier load from the other work on the machine.

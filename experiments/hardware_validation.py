@@ -24,9 +24,9 @@ import tomli_w
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import ROOT, metadata, write_report  # noqa: E402
 
-from tdcr_warp.hardware import fit, metrics, predict, read_measurements  # noqa: E402
-from tdcr_warp.robot import InputError  # noqa: E402
-from tdcr_warp.scene import scene_from_dict  # noqa: E402
+from tdcr_warp.apps.hardware import fit, metrics, predict, read_measurements  # noqa: E402
+from tdcr_warp.io.scene import scene_from_dict  # noqa: E402
+from tdcr_warp.model.robot import InputError  # noqa: E402
 
 DATA = Path(os.environ.get("TDCR_HARDWARE_DATA", ROOT.parent / "shared" / "validation" / "ocm_ftdcr"))
 RUNGS = {"coupled cosserat (fitted)": {}, "coupled kirchhoff": {"rod": "kirchhoff"},

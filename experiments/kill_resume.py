@@ -30,7 +30,7 @@ sys.path[:0] = [str(ROOT / "experiments")]
 from _common import metadata, write_report  # noqa: E402
 from sweep_scale import scene  # noqa: E402
 
-from tdcr_warp.sweep import open_sweep  # noqa: E402
+from tdcr_warp.apps.sweep import open_sweep  # noqa: E402
 
 TIMINGS = ("wall_time_s", "rods_per_s", "computed_rods", "peak_memory_mb", "settings")
 

@@ -1,9 +1,9 @@
-"""Linearised uncertainty propagation (tdcr_warp.uncertainty) against the Monte-Carlo job's
+"""Linearised uncertainty propagation (tdcr_warp.apps.uncertainty) against the Monte-Carlo job's
 statics on examples/montecarlo.toml, at the scene's scatter and at larger scatter.
 
 Per scatter factor k (every normal std, uniform half-width and lognormal sigma times k) it
-draws the sweep's samples (tdcr_warp.sweep.make_samples, the scene's seed), solves them in
-chunks as the montecarlo job does (tdcr_warp.chunk.solve_chunk + jobs.static_job; the
+draws the sweep's samples (tdcr_warp.apps.sweep.make_samples, the scene's seed), solves them in
+chunks as the montecarlo job does (tdcr_warp.apps.chunk.solve_chunk + jobs.static_job; the
 [control] part is left out) and compares per axis: the Monte-Carlo tip std with a 95%
 interval, the linearised std J Sigma J^T (the distributions' variances) and their ratio; the
 linearised std with the samples' own covariance (J Sigma_samples J^T: for a tip linear in the
@@ -34,10 +34,10 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import ROOT, metadata, write_report  # noqa: E402
 
-from tdcr_warp.chunk import solve_chunk  # noqa: E402
-from tdcr_warp.jobs import static_job  # noqa: E402
-from tdcr_warp.sweep import SweepSpec, make_samples  # noqa: E402
-from tdcr_warp.uncertainty import linearised_spread  # noqa: E402
+from tdcr_warp.apps.chunk import solve_chunk  # noqa: E402
+from tdcr_warp.apps.jobs import static_job  # noqa: E402
+from tdcr_warp.apps.sweep import SweepSpec, make_samples  # noqa: E402
+from tdcr_warp.apps.uncertainty import linearised_spread  # noqa: E402
 
 AXES = "xyz"
 POSITIVE = ("youngs_modulus", "radius", "length")  # robot fields that must stay > 0 (density >= 0)

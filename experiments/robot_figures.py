@@ -35,7 +35,7 @@ def viewer_png(scene: Path, work: Path, out: Path | None, size=(760, 1000)) -> d
     from PIL import Image
 
     from tdcr_warp.cli import main as cli
-    from tdcr_warp.viewer import screenshot
+    from tdcr_warp.io.viewer import screenshot
 
     if shutil.which("chromium") is None:
         return {"viewer": "skipped: no chromium on PATH"}

@@ -22,7 +22,7 @@ sys.path[:0] = [str(ROOT / "experiments")]
 
 from _common import metadata, write_report  # noqa: E402
 
-from tdcr_warp.sweep import open_sweep  # noqa: E402
+from tdcr_warp.apps.sweep import open_sweep  # noqa: E402
 
 
 def main(argv=None) -> int:

@@ -23,9 +23,10 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT / "experiments")]
 
-import tdcr_warp as tw  # noqa: E402
 from _common import metadata, write_report  # noqa: E402
-from tdcr_warp.jobs import pareto_front  # noqa: E402
+
+import tdcr_warp as tw  # noqa: E402
+from tdcr_warp.apps.jobs import pareto_front  # noqa: E402
 
 BASE = dict(length=0.5, youngs_modulus=190e9, poisson_ratio=0.3, radius=1e-3, density=7800.0)
 

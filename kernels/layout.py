@@ -38,7 +38,7 @@ SINGULAR = 8
 STALLED = 16
 PRECISION_LIMITED = 32  # with CONVERGED: stopped at the round-off floor, residual above tol
 UNSETTLED = 64  # displacement control: the taut / slack set of the tendons did not settle
-UNSTABLE = 128  # with CONVERGED: an equilibrium, but an unstable one (tdcr_warp/stability.py)
+UNSTABLE = 128  # with CONVERGED: an equilibrium, but an unstable one (tdcr_warp/physics/stability.py)
 
 STATUS_NAMES = {
     CONVERGED: "converged",

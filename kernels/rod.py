@@ -27,8 +27,29 @@ from typing import NamedTuple
 
 import warp as wp
 
-from .layout import (BBT, BSE, DRAG, FE, FORCE_SCALE, KBT, KSE, LENGTH, RHOA, RHOJ, T_A, T_COMPLIANCE, T_DX, T_DY,
-                     T_MU, T_PHASE, T_SLACK_SLOPE, T_W, T_X0, T_Y0, USTAR)
+from .layout import (
+    BBT,
+    BSE,
+    DRAG,
+    FE,
+    FORCE_SCALE,
+    KBT,
+    KSE,
+    LENGTH,
+    RHOA,
+    RHOJ,
+    T_A,
+    T_COMPLIANCE,
+    T_DX,
+    T_DY,
+    T_MU,
+    T_PHASE,
+    T_SLACK_SLOPE,
+    T_W,
+    T_X0,
+    T_Y0,
+    USTAR,
+)
 
 MODELS = ("coupled", "point")
 RODS = ("cosserat", "kirchhoff")

@@ -16,8 +16,20 @@ from types import SimpleNamespace
 
 import warp as wp
 
-from .layout import (CONVERGED, FORCE_SCALE, LENGTH, MAX_ITER, MOMENT_SCALE, TIP_F, TIP_M, TO_BASE, TO_END, TO_FREE,
-                     TO_PATH, TO_TURN)
+from .layout import (
+    CONVERGED,
+    FORCE_SCALE,
+    LENGTH,
+    MAX_ITER,
+    MOMENT_SCALE,
+    TIP_F,
+    TIP_M,
+    TO_BASE,
+    TO_END,
+    TO_FREE,
+    TO_PATH,
+    TO_TURN,
+)
 from .newton import make_newton
 from .rod import ALL, Features, make_rod_funcs
 
@@ -337,7 +349,7 @@ def make_shooting_kernels(dtype, integrator: str, model: str, dynamic: bool = Fa
                         store: int):
         """One integration per rod from x: its residual and tip pose, and with ``store`` its shape
         (and the dynamics slots) in ``out`` (without, a probe of a sensitivity,
-        tdcr_warp/sensitivity.py, at the cost of the integration alone)."""
+        tdcr_warp/physics/sensitivity.py, at the cost of the integration alone)."""
         b = wp.tid()
         r, p_tip, R_tip = shoot(x[b], md, ct, sp, b, store, 0, out)
         res[b] = r

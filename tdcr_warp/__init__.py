@@ -4,10 +4,10 @@ import warp as _wp
 
 _wp.config.log_level = max(_wp.config.log_level, _wp.LOG_WARNING)  # no banner or module-load lines
 
-from .robot import InputError, PointForce, Robot, Tendon  # noqa: E402
-from .statics import StaticOptions, StaticSolution, solve_static  # noqa: E402
-from .dynamics import Simulator, StepResult, Trajectory  # noqa: E402
-from .types import describe_status, status_names  # noqa: E402  (the status bits: docs/outputs.md)
+from tdcr_warp.model.options import describe_status, status_names  # noqa: E402  (the status bits: docs/outputs.md)
+from tdcr_warp.model.robot import InputError, PointForce, Robot, Tendon  # noqa: E402
+from tdcr_warp.physics.dynamics import Simulator, StepResult, Trajectory  # noqa: E402
+from tdcr_warp.physics.statics import StaticOptions, StaticSolution, solve_static  # noqa: E402
 
 
 def _package_version() -> str:

@@ -1,3 +1,3 @@
-from .cli import main
+from tdcr_warp.cli import main
 
 raise SystemExit(main())

@@ -8,12 +8,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 import warp as wp
+from scenes import two_tendon_scene
 
 import tdcr_warp as tw
+from tdcr_warp.apps.control import METRIC_UNITS
 from tdcr_warp.cli import main
-from tdcr_warp.control import METRIC_UNITS
-from tdcr_warp.scene import load_scene
-from scenes import two_tendon_scene
+from tdcr_warp.io.scene import load_scene
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLES = ROOT / "examples"

@@ -11,11 +11,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
-from tdcr_warp.cli import main
-from tdcr_warp.jobs import SweepJob, static_job
-from tdcr_warp.sweep import open_sweep, run_sweep
 from scenes import GAIN_GRID_SWEEP, MC_SWEEP
+
+from tdcr_warp.apps.jobs import SweepJob, static_job
+from tdcr_warp.apps.sweep import open_sweep, run_sweep
+from tdcr_warp.cli import main
 
 ray = pytest.importorskip("ray")
 
@@ -70,9 +70,9 @@ def test_two_workers_give_the_in_process_result(cluster, local, tmp_path):
 
 def test_workers_are_reused_across_chunks(cluster, tmp_path):
     """Kernels load once per worker process: 10 chunks run on at most the 2 workers' processes."""
-    from tdcr_warp.cluster import ray_chunks
-    from tdcr_warp.store import ChunkStore
-    from tdcr_warp.sweep import Samples, SweepSpec
+    from tdcr_warp.apps.cluster import ray_chunks
+    from tdcr_warp.apps.sweep import Samples, SweepSpec
+    from tdcr_warp.io.store import ChunkStore
 
     data = tomllib.loads(SWEEP)
     info = []

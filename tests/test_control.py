@@ -4,8 +4,14 @@ import numpy as np
 import pytest
 
 import tdcr_warp as tw
-from tdcr_warp.control import (TipController, allocate, control_metrics, run_closed_loop, sliding_command,
-                               static_target)
+from tdcr_warp.apps.control import (
+    TipController,
+    allocate,
+    control_metrics,
+    run_closed_loop,
+    sliding_command,
+    static_target,
+)
 
 OFFSETS = [(0.01, 0.0), (0.0, 0.01), (-0.01, 0.0), (0.0, -0.01)]
 
@@ -117,7 +123,7 @@ def test_quasi_static_jacobian_tracks_better_than_report_alpha_model():
 
 
 def test_metrics_on_a_known_history():
-    from tdcr_warp.control import ControlRun
+    from tdcr_warp.apps.control import ControlRun
     t = np.arange(6) * 0.1
     err = np.array([1e-2, 5e-3, -1e-3, 2e-4, 1e-4, 0.0])
     tau = np.array([0.0, 1.0, 2.0, 1.5, 2.5])[:, None, None]

@@ -4,7 +4,7 @@ stronger check (tests/test_cuda.py, skipped here)."""
 
 import os
 
-from tdcr_warp.aot import compile_all, covering_variants
+from tdcr_warp.core.aot import compile_all, covering_variants
 
 
 def test_every_kernel_option_builds_for_sm90(tmp_path):

@@ -8,13 +8,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tdcr_warp.allocation import solve_qp
-from tdcr_warp.control import TipController, control_metrics, run_closed_loop
-from tdcr_warp.dynamics import Simulator
-from tdcr_warp.jobs import scene_controller, scene_simulator
-from tdcr_warp.robot import InputError
-from tdcr_warp.scene import scene_from_dict
-from tdcr_warp.statics import reference_lengths, solve_static
+from tdcr_warp.apps.allocation import solve_qp
+from tdcr_warp.apps.control import TipController, control_metrics, run_closed_loop
+from tdcr_warp.apps.jobs import scene_controller, scene_simulator
+from tdcr_warp.io.scene import scene_from_dict
+from tdcr_warp.model.robot import InputError
+from tdcr_warp.physics.dynamics import Simulator
+from tdcr_warp.physics.statics import reference_lengths, solve_static
 
 EXAMPLE = Path(__file__).parents[1] / "examples" / "displacement_control.toml"
 
@@ -204,7 +204,7 @@ def test_a_batch_of_different_targets_equals_each_alone():
 def test_allocation_stays_finite_without_slack_tendons_at_any_scale():
     """No slack tendon (G = 0) and a large input matrix: the regularisation weights stay finite
     (a weight over an empty matrix once overflowed to inf and made the command NaN)."""
-    from tdcr_warp.allocation import allocate_displacements
+    from tdcr_warp.apps.allocation import allocate_displacements
 
     rng = np.random.default_rng(1)
     B, K = 4, 4

@@ -5,14 +5,14 @@ import tomllib
 
 import numpy as np
 import pytest
+from scenes import two_tendon_scene
 
 import tdcr_warp as tw
 from tdcr_warp.cli import main
-from tdcr_warp.drawing import display_options, robot_geometry
-from tdcr_warp.plotting import animate_robot, plot_robot
-from tdcr_warp.robot import InputError
-from tdcr_warp.scene import scene_from_dict
-from scenes import two_tendon_scene
+from tdcr_warp.io.drawing import display_options, robot_geometry
+from tdcr_warp.io.plotting import animate_robot, plot_robot
+from tdcr_warp.io.scene import scene_from_dict
+from tdcr_warp.model.robot import InputError
 
 
 @pytest.fixture(scope="module")
@@ -112,15 +112,15 @@ tensions = [[2.0, 0.0]]
 @pytest.fixture
 def captured(monkeypatch):
     """The figures the plotting functions save, by file name (not written)."""
-    import tdcr_warp.plotting as plotting
+    import tdcr_warp.io.plotting as plotting
     figs = {}
     monkeypatch.setattr(plotting, "_save", lambda fig, path: figs.__setitem__(path.name, fig))
     return figs
 
 
 def test_control_figures_show_the_limit_the_surface_and_time(captured, tmp_path):
-    from tdcr_warp.control import ControlRun
-    from tdcr_warp.plotting import plot_control
+    from tdcr_warp.apps.control import ControlRun
+    from tdcr_warp.io.plotting import plot_control
     T, t = 50, np.linspace(0, 0.25, 51)
     x = 0.01 * np.exp(-20 * t)[:, None, None] * np.ones((1, 1, 3))
     run = ControlRun(time=t, tip_position=x, tip_velocity=np.gradient(x, t, axis=0), error=-x, sliding=np.zeros_like(x),
@@ -137,7 +137,7 @@ def test_control_figures_show_the_limit_the_surface_and_time(captured, tmp_path)
 
 
 def test_workspace_side_view_spans_its_data(captured, tmp_path):
-    from tdcr_warp.plotting import plot_workspace
+    from tdcr_warp.io.plotting import plot_workspace
     rng = np.random.default_rng(0)
     tips = np.c_[rng.uniform(-0.06, 0.06, (500, 2)), 0.497 + 0.003 * rng.random(500)]
     plot_workspace(tips, rng.random(500), tips + 1e-4, [], tmp_path)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import tdcr_warp as tw
-from tdcr_warp.dynamics import bdf_alpha_coefficients
+from tdcr_warp.physics.dynamics import bdf_alpha_coefficients
 
 E, NU, R, L, RHO = 190e9, 0.3, 1e-3, 0.5, 7800.0
 EI = E * np.pi * R**4 / 4

@@ -109,7 +109,7 @@ def test_constant_curvature_refuses_scenes_it_cannot_model():
 def test_presets_and_scene_key(tmp_path):
     from scenes import ROBOT
 
-    from tdcr_warp.scene import load_scene
+    from tdcr_warp.io.scene import load_scene
     assert tw.StaticOptions.preset("fast").rod == "kirchhoff"
     assert tw.StaticOptions.preset("accurate", nodes=64).nodes == 64
     with pytest.raises(tw.InputError, match="preset"):

@@ -1,4 +1,4 @@
-"""The CMA-ES gain search (tdcr_warp.gainsearch): reproducible, inside its bounds, exact in its
+"""The CMA-ES gain search (tdcr_warp.apps.gainsearch): reproducible, inside its bounds, exact in its
 budget, ordered as the gain grid, and its [search] table, arguments and CLI outputs."""
 
 import json
@@ -7,13 +7,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
-from tdcr_warp.cli import main
-from tdcr_warp.gainsearch import ClosedLoops, cma_search, gain_objective, search_gains
-from tdcr_warp.robot import InputError
-from tdcr_warp.scene import scene_from_dict
-from tdcr_warp.sweep import open_sweep
 from scenes import GAIN_GRID_SWEEP
+
+from tdcr_warp.apps.gainsearch import ClosedLoops, cma_search, gain_objective, search_gains
+from tdcr_warp.apps.sweep import open_sweep
+from tdcr_warp.cli import main
+from tdcr_warp.io.scene import scene_from_dict
+from tdcr_warp.model.robot import InputError
 
 ROOT = Path(__file__).resolve().parents[1]
 RANGES = {"control.gain_c": (5.0, 40.0), "control.gain_k": (5.0, 40.0), "control.epsilon": (0.005, 0.05),
@@ -216,7 +216,7 @@ def test_cli_refuses_bad_input(tmp_path, capsys):
 
 
 def test_cli_interrupted_writes_no_results(tmp_path, monkeypatch, capsys):
-    import tdcr_warp.gainsearch as gs
+    import tdcr_warp.apps.gainsearch as gs
 
     def interrupt(self, rows):
         raise KeyboardInterrupt

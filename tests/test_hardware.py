@@ -1,4 +1,4 @@
-"""Measured robots (tdcr_warp/hardware.py, `tdcr-warp fit` and `predict`): the keypoint reader's
+"""Measured robots (tdcr_warp/apps/hardware.py, `tdcr-warp fit` and `predict`): the keypoint reader's
 errors, predictions and metrics, and a calibration that recovers known parameters from
 synthetic measurements (tips of this simulator plus noise) from a wrong start."""
 
@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 import tdcr_warp as tw
+from tdcr_warp.apps.hardware import fit, metrics, predict, read_measurements
 from tdcr_warp.cli import main
-from tdcr_warp.hardware import fit, metrics, predict, read_measurements
-from tdcr_warp.scene import scene_from_dict
+from tdcr_warp.io.scene import scene_from_dict
 
 COLS = [f"servo_{k}_mm" for k in range(6)]
 HEADER = "timestamp,pattern_label," + ",".join(COLS) + ",tip_x,tip_y,tip_z"
@@ -51,7 +51,7 @@ def synthetic_csv(path, rows=60, noise_mm=0.05, seed=0):
 
 
 def read_measurements_from(q, tips):
-    from tdcr_warp.hardware import Measurements
+    from tdcr_warp.apps.hardware import Measurements
     n = len(q)
     return Measurements(np.array(["x"] * n), q, tips, np.array(["mem"] * n))
 

@@ -1,4 +1,4 @@
-"""Batched inverse kinematics (tdcr_warp/ik.py): round trips through the forward statics,
+"""Batched inverse kinematics (tdcr_warp/apps/ik.py): round trips through the forward statics,
 unreachable targets with the closest reachable point, orientation targets, displacement
 control, and the messages for bad input."""
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import tdcr_warp as tw
-from tdcr_warp.ik import box_least_squares, solve_ik
+from tdcr_warp.apps.ik import box_least_squares, solve_ik
 
 OFF = 0.01
 FOUR = [(OFF, 0.0), (0.0, OFF), (-OFF, 0.0), (0.0, -OFF)]

@@ -9,13 +9,13 @@ import sys
 import time
 
 import pytest
+from scenes import ROBOT, two_tendon_scene
 
 from tdcr_warp.cli import main
-from scenes import ROBOT, two_tendon_scene
 
 # every module the commands import, imported before any name is patched (a module first imported
 # under a patch would keep the patched function for good)
-for module in ("control", "hardware", "ik", "jobs", "plotting", "sweep", "uncertainty"):
+for module in ("apps.control", "apps.hardware", "apps.ik", "apps.jobs", "io.plotting", "apps.sweep", "apps.uncertainty"):
     importlib.import_module(f"tdcr_warp.{module}")
 
 STATIC = two_tendon_scene(nodes=10)
@@ -51,15 +51,15 @@ COMMANDS = {
     "predict": (HARDWARE, ["data.csv"], ["metrics.json"]),
     "fit": (HARDWARE, ["data.csv", "--max-iter", "1", "--detail", "segment", "--quiet"], ["fit.json", "fitted.toml"]),
 }
-SOLVE = {"static": "tdcr_warp.statics.solve_static", "simulate": "tdcr_warp.dynamics.Simulator.simulate",
-         "control": "tdcr_warp.control.run_closed_loop", "ik": "tdcr_warp.ik.solve_ik",
-         "predict": "tdcr_warp.hardware.predict", "fit": "tdcr_warp.hardware.fit"}
+SOLVE = {"static": "tdcr_warp.physics.statics.solve_static", "simulate": "tdcr_warp.physics.dynamics.Simulator.simulate",
+         "control": "tdcr_warp.apps.control.run_closed_loop", "ik": "tdcr_warp.apps.ik.solve_ik",
+         "predict": "tdcr_warp.apps.hardware.predict", "fit": "tdcr_warp.apps.hardware.fit"}
 FIGURES = {"static": "plot_robot", "simulate": "plot_tip_history", "control": "plot_control",
            "predict": "plot_prediction"}
-PHASES = ([(c, "scene", "tdcr_warp.scene.scene_from_dict") for c in COMMANDS]
-          + [(c, "kernels", "tdcr_warp.solver.load_kernels") for c in ("static", "simulate", "ik", "predict")]
+PHASES = ([(c, "scene", "tdcr_warp.io.scene.scene_from_dict") for c in COMMANDS]
+          + [(c, "kernels", "tdcr_warp.core.solver.load_kernels") for c in ("static", "simulate", "ik", "predict")]
           + [(c, "solve", target) for c, target in SOLVE.items()]
-          + [(c, "figures", f"tdcr_warp.plotting.{f}") for c, f in FIGURES.items()]
+          + [(c, "figures", f"tdcr_warp.io.plotting.{f}") for c, f in FIGURES.items()]
           + [(c, "results", "tdcr_warp.cli._write_json") for c in COMMANDS])
 
 
@@ -100,7 +100,7 @@ def test_interrupt_exits_130_leaving_nothing_complete(tmp_path, monkeypatch, cap
 @pytest.mark.parametrize("command", ["montecarlo", "workspace", "gain-grid"])
 def test_interrupted_sweep_while_loading_exits_130(tmp_path, monkeypatch, capsys, command):
     (tmp_path / "scene.toml").write_text(STATIC)
-    monkeypatch.setattr("tdcr_warp.scene.scene_from_dict", interrupt)
+    monkeypatch.setattr("tdcr_warp.io.scene.scene_from_dict", interrupt)
     assert run([command, str(tmp_path / "scene.toml"), "--out", str(tmp_path / "out"), "--quiet"]) == 130
     err = capsys.readouterr().err
     assert err.splitlines()[-1].startswith("tdcr-warp: interrupted") and "Traceback" not in err
@@ -110,7 +110,7 @@ def test_interrupt_leaves_sigint_as_it_was(tmp_path, monkeypatch):
     """In process, main() hands SIGINT back as it found it (unless a real one arrived: then the
     process is ending, and SIGINT stays ignored)."""
     (tmp_path / "scene.toml").write_text(STATIC)
-    monkeypatch.setattr("tdcr_warp.statics.solve_static", interrupt)
+    monkeypatch.setattr("tdcr_warp.physics.statics.solve_static", interrupt)
     assert run(["static", str(tmp_path / "scene.toml"), "--out", str(tmp_path / "out")]) == 130
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
 

@@ -1,4 +1,4 @@
-"""Linearised uncertainty propagation (tdcr_warp/uncertainty.py): against the Monte-Carlo
+"""Linearised uncertainty propagation (tdcr_warp/apps/uncertainty.py): against the Monte-Carlo
 job's statics on examples/montecarlo.toml, against the closed form of a straight cantilever,
 and its input errors."""
 
@@ -10,11 +10,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tdcr_warp.chunk import solve_chunk
-from tdcr_warp.jobs import static_job
-from tdcr_warp.robot import InputError
-from tdcr_warp.sweep import SweepSpec, make_samples
-from tdcr_warp.uncertainty import distribution_moments, linearised_spread
+from tdcr_warp.apps.chunk import solve_chunk
+from tdcr_warp.apps.jobs import static_job
+from tdcr_warp.apps.sweep import SweepSpec, make_samples
+from tdcr_warp.apps.uncertainty import distribution_moments, linearised_spread
+from tdcr_warp.model.robot import InputError
 
 ROOT = Path(__file__).resolve().parents[1]
 E, NU, R, L, F = 190e9, 0.3, 1e-3, 0.5, 1e-3

@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from tdcr_warp.kernels import layout
 
 import tdcr_warp as tw
+from tdcr_warp.apps.ik import solve_ik
 from tdcr_warp.cli import main
-from tdcr_warp.ik import solve_ik
-from tdcr_warp.kernels import layout
 
 ROOT = Path(__file__).resolve().parents[1]
 

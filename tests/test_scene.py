@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import tdcr_warp as tw
-from tdcr_warp.scene import Scene, load_scene, scene_from_dict
+from tdcr_warp.io.scene import Scene, load_scene, scene_from_dict
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 

@@ -1,4 +1,4 @@
-"""Sensitivities from the converged shooting problem (tdcr_warp/sensitivity.py): the tip
+"""Sensitivities from the converged shooting problem (tdcr_warp/physics/sensitivity.py): the tip
 Jacobians of the commands, the tip compliance and parameter Jacobians, against closed forms of
 a straight cantilever, central differences of full solves and of the independent SciPy solver."""
 

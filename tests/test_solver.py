@@ -7,10 +7,10 @@ Equality here is exact (np.array_equal): the same arithmetic must give the same 
 import numpy as np
 import pytest
 import warp as wp
-
-import tdcr_warp as tw
 from tdcr_warp.kernels import layout
 from tdcr_warp.kernels.newton import make_newton
+
+import tdcr_warp as tw
 
 OFFSETS = [(0.01, 0.0), (0.0, 0.01), (-0.01, 0.0), (0.0, -0.01)]
 

@@ -1,4 +1,4 @@
-"""The elastic stability verdict (tdcr_warp/stability.py) and the search for the stable branch,
+"""The elastic stability verdict (tdcr_warp/physics/stability.py) and the search for the stable branch,
 against closed forms: Euler's buckling loads of a cantilever, the post-buckled elastica, and
 the buckling loads of a tendon-loaded rod under tension and under displacement control."""
 
@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 from scipy.optimize import brentq
 from scipy.special import ellipe, ellipk
+from tdcr_warp.kernels import layout
 
 import tdcr_warp as tw
-from tdcr_warp.kernels import layout
 
 E, NU, RB, L = 190e9, 0.3, 1e-3, 0.5
 EI = E * np.pi * RB**4 / 4

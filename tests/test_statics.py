@@ -12,9 +12,9 @@ import sys
 
 import numpy as np
 import pytest
+from tdcr_warp.kernels import layout
 
 import tdcr_warp as tw
-from tdcr_warp.kernels import layout
 
 CLOSED_FORM_TOL = 1e-9
 BATCH_TOL = 1e-12

@@ -7,15 +7,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scenes import GAIN_GRID_SWEEP, two_tendon_scene
+from scenes import MC_SWEEP as MC
 
 import tdcr_warp as tw
+from tdcr_warp.apps.jobs import constant_curvature_tip, convex_hull_2d, pareto_front, static_job
+from tdcr_warp.apps.sweep import open_sweep, run_sweep
 from tdcr_warp.cli import main
-from tdcr_warp.jobs import constant_curvature_tip, convex_hull_2d, pareto_front, static_job
-from tdcr_warp.scene import scene_from_dict
-from tdcr_warp.sweep import open_sweep, run_sweep
-from scenes import GAIN_GRID_SWEEP
-from scenes import MC_SWEEP as MC
-from scenes import two_tendon_scene
+from tdcr_warp.io.scene import scene_from_dict
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -7,15 +7,15 @@ import tomllib
 
 import numpy as np
 import pytest
+from scenes import GAIN_GRID_SWEEP, MC_SWEEP, two_tendon_scene
 
 import tdcr_warp as tw
+from tdcr_warp.apps.jobs import ERROR_EDGES, Histogram, SweepJob, convex_hull_2d, pareto_front, static_job
+from tdcr_warp.apps.sweep import Samples, SweepSpec, make_samples, open_sweep, run_sweep
 from tdcr_warp.cli import main
-from tdcr_warp.jobs import ERROR_EDGES, Histogram, SweepJob, convex_hull_2d, pareto_front, static_job
-from tdcr_warp.robot import InputError
-from tdcr_warp.scene import scene_from_dict
-from tdcr_warp.store import ChunkError, SweepLock
-from tdcr_warp.sweep import Samples, SweepSpec, make_samples, open_sweep, run_sweep
-from scenes import GAIN_GRID_SWEEP, MC_SWEEP, two_tendon_scene
+from tdcr_warp.io.scene import scene_from_dict
+from tdcr_warp.io.store import ChunkError, SweepLock
+from tdcr_warp.model.robot import InputError
 
 
 @pytest.fixture
@@ -99,7 +99,7 @@ def test_a_bad_chunk_is_never_merged(scene, tmp_path, reference, capsys, damage,
 
 def test_a_bad_chunk_found_by_the_summary_is_exit_2(scene, tmp_path, capsys, monkeypatch):
     """A part damaged between the run and its summary: exit 2 naming it, no summary."""
-    import tdcr_warp.jobs as jobs
+    import tdcr_warp.apps.jobs as jobs
     out = tmp_path / "o"
     real = jobs.summarize_montecarlo
 
@@ -329,7 +329,7 @@ def test_results_open_in_pandas_and_xarray(tmp_path, scene):
 def test_an_interrupt_while_summarising_leaves_nothing_complete_looking(scene, tmp_path, capsys, monkeypatch):
     """Ctrl-C in the summary phase: exit 130, one line, no summary; --resume then summarises
     the kept chunks without computing any."""
-    import tdcr_warp.jobs as jobs
+    import tdcr_warp.apps.jobs as jobs
     out = tmp_path / "o"
 
     def interrupted(*args):

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import tdcr_warp as tw
-from tdcr_warp.statics import reference_lengths
+from tdcr_warp.physics.statics import reference_lengths
 
 E, NU, RB, L = 190e9, 0.3, 1e-3, 0.5
 A = np.pi * RB**2

@@ -5,13 +5,13 @@ import json
 
 import numpy as np
 import pytest
+from test_control import seed_robot
 
 import tdcr_warp as tw
+from tdcr_warp.apps.control import ControlRun, TipController, control_metrics, run_closed_loop, sliding_command
 from tdcr_warp.cli import main
-from tdcr_warp.control import ControlRun, TipController, control_metrics, run_closed_loop, sliding_command
-from tdcr_warp.robot import InputError
-from tdcr_warp.tippath import TipPath, path_from_table
-from test_control import seed_robot
+from tdcr_warp.model.robot import InputError
+from tdcr_warp.model.tippath import TipPath, path_from_table
 
 
 def _finite_difference(path, t, h=1e-6):
@@ -209,7 +209,7 @@ def test_integral_control_on_the_rod_settles_where_the_nominal_model_is_wrong():
     """A plant 10% stiffer than the controller's model: the boundary layer is left off the
     target, the integral surface brings the tip within 0.1 mm."""
     plant, model = seed_robot(youngs_modulus=209e9), seed_robot()
-    from tdcr_warp.control import static_target
+    from tdcr_warp.apps.control import static_target
     target = static_target(model, [[3.0, 0.0, 0.0, 0.0]], nodes=10)
     err = {}
     for method in ("boundary_layer", "integral"):

@@ -1,4 +1,4 @@
-"""The interactive HTML viewer (tdcr_warp.viewer): what the figure holds (traces per rod, disk and
+"""The interactive HTML viewer (tdcr_warp.io.viewer): what the figure holds (traces per rod, disk and
 tendon, animation frames with their times, equal axes, hover text), the self-contained file and
 the CLI's --html; and a real headless Chromium's screenshot of it (skipped without chromium)."""
 
@@ -11,13 +11,23 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from scenes import two_tendon_scene
 
 import tdcr_warp as tw
 from tdcr_warp.cli import main
-from tdcr_warp.robot import InputError
-from tdcr_warp.viewer import (MAX_FRAMES, RIM_POINTS, ROD_COLOURS, TENSION_SCALE, frame_indices, robot_figure,
-                              screenshot, viewer_spec, write_run_viewer, write_viewer)
-from scenes import two_tendon_scene
+from tdcr_warp.io.viewer import (
+    MAX_FRAMES,
+    RIM_POINTS,
+    ROD_COLOURS,
+    TENSION_SCALE,
+    frame_indices,
+    robot_figure,
+    screenshot,
+    viewer_spec,
+    write_run_viewer,
+    write_viewer,
+)
+from tdcr_warp.model.robot import InputError
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 L = 0.5
@@ -153,7 +163,7 @@ def test_trajectory_has_a_frame_per_shape_with_its_time():
 def test_frames_draw_robot_geometry(per_rod):
     """Every frame's tendons and disks are robot_geometry's of that shape (a robot shared by the
     batch is drawn in one call for all frames, a per-rod robot frame by frame)."""
-    from tdcr_warp.drawing import robot_geometry
+    from tdcr_warp.io.drawing import robot_geometry
 
     offset = [[0.01, 0.0], [0.0, 0.008]] if per_rod else (0.01, 0.0)
     robot = tw.Robot(length=L, tendons=[tw.Tendon(offset=offset, length=0.3),

@@ -13,8 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .kernels import layout
-from .solver import Shooting
+from tdcr_warp.core.solver import Shooting
+from tdcr_warp.kernels import layout
 
 LARGE_LOAD = 1.5  # scaled bending load of the straight-rod start: |m(0)| L / EI + |n_xy(0)| L^2 / EI
 MAX_CONTINUATION = 64

@@ -11,12 +11,12 @@ from pathlib import Path
 
 import numpy as np
 
-from .control import TipController, control_metrics, run_closed_loop, static_target
-from .dynamics import Simulator
-from .robot import InputError
-from .scene import Scene, scene_from_dict
-from .statics import solve_static
-from .tippath import path_from_table
+from tdcr_warp.apps.control import TipController, control_metrics, run_closed_loop, static_target
+from tdcr_warp.io.scene import Scene, scene_from_dict
+from tdcr_warp.model.robot import InputError
+from tdcr_warp.model.tippath import path_from_table
+from tdcr_warp.physics.dynamics import Simulator
+from tdcr_warp.physics.statics import solve_static
 
 __all__ = ["SweepJob", "constant_curvature_tip", "control_job", "convex_hull_2d", "failure_counts", "pareto_front",
            "scene_controller", "scene_simulator", "static_job", "summarize_gain_grid", "summarize_montecarlo",
@@ -230,7 +230,7 @@ def _stride(rods: int) -> int:
 
 def failure_counts(run) -> dict[str, int]:
     """The failed rods of every chunk counted per reason (jobs with status bits)."""
-    from .types import failure_reasons
+    from tdcr_warp.model.options import failure_reasons
     counts: dict[str, int] = {}
     for part in run.parts():
         if "status" not in part:
@@ -242,7 +242,7 @@ def failure_counts(run) -> dict[str, int]:
 def summarize_montecarlo(run, nominal_tip: np.ndarray, out: Path) -> dict:
     """The tip distribution of a Monte-Carlo sweep (and with control its success rate), one
     chunk at a time: moments merged exactly, error percentiles from a histogram (1.2%)."""
-    from .plotting import plot_montecarlo
+    from tdcr_warp.io.plotting import plot_montecarlo
     tips_m, err_h, stride = Moments(3), Histogram(ERROR_EDGES), _stride(run.rods)
     rods = failed = 0
     shown, control = [], None
@@ -279,7 +279,7 @@ def summarize_montecarlo(run, nominal_tip: np.ndarray, out: Path) -> dict:
 def summarize_workspace(run, robot, out: Path, slices: int = 8) -> dict:
     """The tip cloud of a workspace sweep, in two passes over the chunks: the z range and the
     constant-curvature deviation, then a convex hull per height slice (merged hull by hull)."""
-    from .plotting import plot_workspace
+    from tdcr_warp.io.plotting import plot_workspace
     rods = failed = 0
     lo, hi = np.full(3, math.inf), np.full(3, -math.inf)
     dev, stride = Histogram(ERROR_EDGES), _stride(run.rods)
@@ -320,7 +320,7 @@ def summarize_workspace(run, robot, out: Path, slices: int = 8) -> dict:
 def summarize_gain_grid(run, fields: list[str], out: Path) -> dict:
     """Best gains and the Pareto front (settling time vs chatter) of a gain grid, chunk by
     chunk: the front of the union is the front of the fronts; heat maps keep each cell's best."""
-    from .plotting import plot_gain_grid
+    from tdcr_warp.io.plotting import plot_gain_grid
     metrics = ("settling_time", "final_error", "chatter", "overshoot", "peak_tension")
     rods = failed = 0
     keep: dict[str, list] = {k: [] for k in ("row", "settle", "chatter", "error", *metrics, *fields)}

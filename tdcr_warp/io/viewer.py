@@ -4,7 +4,7 @@ length s [m] and position [mm], on a tendon for its index, tension [N] and s;
 a trajectory gets a time slider and play/pause buttons (at most MAX_FRAMES = 200 frames, and
 ROD_FRAMES = 1000 rods x frames: a longer run is drawn at evenly spaced stored shapes).
 
-Drawn from :func:`tdcr_warp.drawing.robot_geometry`, in millimetres, with equal scales on the
+Drawn from :func:`tdcr_warp.io.drawing.robot_geometry`, in millimetres, with equal scales on the
 three axes (fixed over a trajectory's frames):
 
 - per rod: its backbone (a thick line; one legend entry per rod when there are several, which
@@ -29,8 +29,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .drawing import RobotGeometry, robot_geometry
-from .robot import InputError, Robot
+from tdcr_warp.io.drawing import RobotGeometry, robot_geometry
+from tdcr_warp.model.robot import InputError, Robot
 
 __all__ = ["MAX_FRAMES", "MAX_RODS", "ROD_COLOURS", "TENSION_SCALE", "find_browser", "frame_indices", "robot_figure",
            "screenshot", "shape_tensions", "viewer_spec", "write_run_viewer", "write_viewer"]
@@ -288,7 +288,7 @@ def shape_tensions(run, initial_tensions) -> np.ndarray:
 def write_run_viewer(path, robot: Robot, run, s, initial_tensions, *, display: dict | None = None,
                      rods: int = MAX_RODS, title: str | None = None, max_frames: int = MAX_FRAMES) -> int:
     """The viewer of a trajectory (:class:`tdcr_warp.Trajectory`) or closed-loop run
-    (:class:`tdcr_warp.control.ControlRun`) from its stored shapes (``shape_steps``,
+    (:class:`tdcr_warp.apps.control.ControlRun`) from its stored shapes (``shape_steps``,
     ``positions``, ``rotations``, the shapes kept every ``[dynamics].shapes_every`` steps), its
     first ``rods`` rods; ``s``: the nodes' arc lengths (the Simulator's ``grid``);
     ``initial_tensions``: the static start's (B, K). Returns the number of frames drawn."""

@@ -1,34 +1,20 @@
 """One chunk of a sweep: the base scene with its sample rows applied per rod, solved by a job.
-Shared by the in-process backend (tdcr_warp.sweep) and the Ray backend (tdcr_warp.cluster)."""
+Shared by the in-process backend (tdcr_warp.apps.sweep) and the Ray backend (tdcr_warp.apps.cluster)."""
 
 from __future__ import annotations
 
 import copy
-import re
 from dataclasses import replace
 
 import numpy as np
 
-from .robot import InputError
-from .scene import scene_from_dict
+from tdcr_warp.io.scene import scene_from_dict
+from tdcr_warp.model.fields import parse_field
+from tdcr_warp.model.robot import InputError
 
-__all__ = ["apply_rows", "parse_field", "solve_chunk"]
+__all__ = ["apply_rows", "solve_chunk"]
 
-_TOKEN = re.compile(r"([A-Za-z_]+)(?:\[(\d+)\])?")
 ACTUATION_ROWS = ("tensions", "displacements", "slip")  # per-rod rows of K in [actuation]
-
-
-def parse_field(name: str) -> list:
-    """'tendons[1].offset[0]' -> ['tendons', 1, 'offset', 0]."""
-    path = []
-    for part in name.split("."):
-        m = _TOKEN.fullmatch(part)
-        if not m:
-            raise InputError(f"sweep field {name!r}: cannot parse {part!r}")
-        path.append(m.group(1))
-        if m.group(2) is not None:
-            path.append(int(m.group(2)))
-    return path
 
 
 def apply_rows(data: dict, rows: dict[str, np.ndarray]) -> dict:

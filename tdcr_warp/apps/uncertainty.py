@@ -2,7 +2,7 @@
 
 The Monte-Carlo job (``sweep montecarlo``) solves thousands of perturbed rods; to first order
 the same spread comes from one solve. With the tip pose y(p) and the parameter Jacobian
-J = dy/dp at the nominal parameters p0 (:mod:`tdcr_warp.sensitivity`), independent
+J = dy/dp at the nominal parameters p0 (:mod:`tdcr_warp.physics.sensitivity`), independent
 parameters of variances s_j^2 give
 
     Cov[y] ~= J diag(s^2) J^T,   Var[y_i] = sum_j J_ij^2 s_j^2   (the contribution of each j).
@@ -25,12 +25,12 @@ import math
 
 import numpy as np
 
-from .chunk import parse_field
-from .robot import InputError
-from .scene import scene_from_dict
-from .sensitivity import parameter_value
-from .statics import solve_static
-from .sweep import SweepSpec
+from tdcr_warp.apps.sweep import SweepSpec
+from tdcr_warp.io.scene import scene_from_dict
+from tdcr_warp.model.fields import parse_field
+from tdcr_warp.model.robot import InputError
+from tdcr_warp.physics.sensitivity import parameter_value
+from tdcr_warp.physics.statics import solve_static
 
 __all__ = ["distribution_moments", "linearised_spread"]
 

@@ -18,9 +18,9 @@ from dataclasses import replace
 
 import numpy as np
 
-from .build import Tables, put_model
-from .kernels import layout
-from .robot import InputError, Robot
+from tdcr_warp.core.build import Tables, put_model
+from tdcr_warp.kernels import layout
+from tdcr_warp.model.robot import InputError, Robot
 
 __all__ = ["PROBE_REL", "linearise", "parameter_tables", "parameter_value", "perturbed", "pose_rate"]
 
@@ -65,7 +65,7 @@ def _field_scale(robot: Robot, what, B: int) -> np.ndarray:
 def parse_parameter(name: str):
     """'youngs_modulus' | 'robot.radius' | 'loads.tip_force[0]' | 'tendons[1].offset[0]' ->
     (tendon index or None, field, component or None)."""
-    from .chunk import parse_field  # the scene's field syntax
+    from tdcr_warp.model.fields import parse_field  # the scene's field syntax
 
     path = parse_field(name)
     if path[0] in ("robot", "loads"):

@@ -9,15 +9,16 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, fields, replace
 
-from .kernels import layout
-from .kernels.rod import MODELS, RODS
-from .kernels.shooting import INTEGRATORS
-from .robot import InputError
+from tdcr_warp.kernels import layout
+from tdcr_warp.kernels.rod import MODELS, RODS
+from tdcr_warp.kernels.shooting import INTEGRATORS
+from tdcr_warp.model.robot import InputError
 
-__all__ = ["DRIVERS", "PRECISIONS", "PRESETS", "StaticOptions", "describe_status", "failure_reasons",
+__all__ = ["COMMANDS", "DRIVERS", "PRECISIONS", "PRESETS", "StaticOptions", "describe_status", "failure_reasons",
            "status_names"]
 
 PRECISIONS = ("float64", "float32")
+COMMANDS = ("tension", "displacement")  # what the tip controller commands: tendon tensions or motor displacements
 DRIVERS = ("fused", "probes")
 STABILITY = ("off", "check", "stable")
 
@@ -82,9 +83,9 @@ class StaticOptions:
     them) also where no tendon is under displacement control or has friction (there they are
     integrated anyway).
     sensitivities: also return the tip Jacobian of the commands and the tip compliance per rod
-    (tdcr_warp/sensitivity.py; one probe integration per unknown and per tension-controlled
+    (tdcr_warp/physics/sensitivity.py; one probe integration per unknown and per tension-controlled
     tendon). stability: "off", "check" (the Jacobi test of every converged rod:
-    tdcr_warp/stability.py; an unstable one is flagged UNSTABLE) or "stable" (check, and where
+    tdcr_warp/physics/stability.py; an unstable one is flagged UNSTABLE) or "stable" (check, and where
     an equilibrium is unstable search for a stable one by restarts, reporting which branch was
     returned).
     """

@@ -16,9 +16,9 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
-from .kernels import layout
-from .kernels.rod import ALL, SLOT_WIDTH, Features
-from .robot import InputError, Robot
+from tdcr_warp.kernels import layout
+from tdcr_warp.kernels.rod import ALL, SLOT_WIDTH, Features
+from tdcr_warp.model.robot import InputError, Robot
 
 PRECISIONS = {"float64": (wp.float64, np.float64), "float32": (wp.float32, np.float32)}
 

@@ -14,13 +14,13 @@ Tables and keys (SI units; see README "Scene format"):
   [control]    target (or target_tensions / target_displacements: the static tip there, or path),
                method, input_model, gain_c, gain_k, epsilon, phi, tension_max, model_every,
                gain_i, command ("tension" | "displacement"), displacement_range ([lo, hi], m)
-               (see tdcr_warp.control)
+               (see tdcr_warp.apps.control)
   [ik]         targets (B rows of 3, m), target_rotations (B 3x3 matrices), tension_max (N),
-               displacement_range ([lo, hi], m), tol (m), max_iter (see tdcr_warp.ik)
+               displacement_range ([lo, hi], m), tol (m), max_iter (see tdcr_warp.apps.ik)
   [hardware]   servo_columns (the measurement CSV's column of each tendon), marker_offset and
-               base_offset (world frame, m) (see tdcr_warp.hardware)
+               base_offset (world frame, m) (see tdcr_warp.apps.hardware)
   [search]     budget (closed loops), population, seed, sigma, [search.ranges] gain = [lo, hi]
-               (see tdcr_warp.gainsearch)
+               (see tdcr_warp.apps.gainsearch)
 A robot scalar may be a list of B numbers and a vector a list of B vectors (per-rod values).
 Every error is an :class:`InputError` naming the table, the key and the value.
 """
@@ -34,12 +34,19 @@ from pathlib import Path
 
 import numpy as np
 
-from .control import COMMANDS
-from .drawing import display_options
-from .tippath import path_from_table
-from .robot import (InputError, PointForce, Robot, Tendon, check_displacements, check_slip, check_tensions,
-                    require_memory)
-from .types import StaticOptions
+from tdcr_warp.io.drawing import display_options
+from tdcr_warp.model.options import COMMANDS, StaticOptions
+from tdcr_warp.model.robot import (
+    InputError,
+    PointForce,
+    Robot,
+    Tendon,
+    check_displacements,
+    check_slip,
+    check_tensions,
+    require_memory,
+)
+from tdcr_warp.model.tippath import path_from_table
 
 __all__ = ["DynamicsSpec", "Scene", "load_scene", "scene_from_dict"]
 
@@ -95,8 +102,8 @@ class Scene:
     slip: np.ndarray | None = None
     ik: dict | None = None
     hardware: dict | None = None
-    display: dict | None = None  # the [display] table, checked (tdcr_warp.drawing)
-    search: dict | None = None  # the [search] table, checked (search_options; tdcr_warp.gainsearch)
+    display: dict | None = None  # the [display] table, checked (tdcr_warp.io.drawing)
+    search: dict | None = None  # the [search] table, checked (search_options; tdcr_warp.apps.gainsearch)
     text: str | None = None  # the TOML file's content (load_scene; None for a scene made from a dict)
 
     def static_command(self) -> dict:

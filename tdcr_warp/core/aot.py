@@ -1,7 +1,7 @@
 """Ahead-of-time CUDA builds of the package's kernels, on any machine (no GPU needed: Warp
 carries NVRTC), to show that every kernel variant builds for a GPU and to ship cubins.
 
-    python -m tdcr_warp.aot [--arch 90] [--out DIR] [--all] [--jobs N]
+    python -m tdcr_warp.core.aot [--arch 90] [--out DIR] [--all] [--jobs N]
 
 A variant is one (precision, integrator, tendon model, rod model, statics/dynamics, feature
 set); each builds three Warp modules (fused driver, probe driver, evaluation) plus the
@@ -21,8 +21,8 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import NamedTuple
 
-from .kernels.rod import ALL, MODELS, RODS, Features
-from .kernels.shooting import INTEGRATORS
+from tdcr_warp.kernels.rod import ALL, MODELS, RODS, Features
+from tdcr_warp.kernels.shooting import INTEGRATORS
 
 __all__ = ["Variant", "compile_variant", "covering_variants", "all_variants", "main"]
 
@@ -71,8 +71,8 @@ def covering_variants() -> list[Variant]:
 def _modules(v: Variant):
     import warp as wp
 
-    from .kernels.history import make_history_kernels
-    from .kernels.shooting import make_shooting_kernels
+    from tdcr_warp.kernels.history import make_history_kernels
+    from tdcr_warp.kernels.shooting import make_shooting_kernels
 
     dtype = wp.float64 if v.precision == "float64" else wp.float32
     k = make_shooting_kernels(dtype, v.integrator, v.model, v.dynamic, v.rod, v.features)
@@ -108,7 +108,7 @@ def compile_all(variants: list[Variant], arch: int, out_dir: str, jobs: int, log
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m tdcr_warp.aot", description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(prog="python -m tdcr_warp.core.aot", description=__doc__.splitlines()[0])
     ap.add_argument("--arch", type=int, default=90, help="CUDA compute capability (90: H100/H200)")
     ap.add_argument("--out", help="directory for the cubins (default: a temporary one, removed)")
     ap.add_argument("--all", action="store_true", help=f"every variant ({len(all_variants())}), not the covering set")

@@ -22,10 +22,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .kernels.rod import MODELS
-from .kernels.shooting import INTEGRATORS
-from .progress import Progress
-from .robot import InputError
+from tdcr_warp.core.progress import Progress
+from tdcr_warp.kernels.rod import MODELS
+from tdcr_warp.kernels.shooting import INTEGRATORS
+from tdcr_warp.model.robot import InputError
 
 
 def _write_atomic(path: Path, write) -> None:
@@ -86,7 +86,7 @@ def _settings(scene, args, device) -> dict:
     actually used, the tdcr-warp and Warp versions and the scene file's text (docs/outputs.md)."""
     import warp as wp
 
-    from . import __version__
+    from tdcr_warp import __version__
     out = asdict(scene.options)
     out.pop("tol", None)  # None means the precision's default: tolerance_m is the value used
     try:
@@ -116,16 +116,16 @@ def _print_rods(tips, ok, iters, resid, reasons, limit: int = 10) -> None:
 
 def _load_kernels(scene, args, dynamic: bool = False) -> float:
     """Load (or compile, on first use) the scene's kernels before the timed run, so that its rate
-    excludes them; a compile says so on stderr (tdcr_warp.solver.set_compile_notice)."""
-    from .solver import load_kernels
+    excludes them; a compile says so on stderr (tdcr_warp.core.solver.set_compile_notice)."""
+    from tdcr_warp.core.solver import load_kernels
 
     return load_kernels(scene.robot, scene.options, args.device, dynamic=dynamic)
 
 
 def cmd_static(args) -> int:
-    from .scene import load_scene
-    from .statics import solve_static
-    from .types import failure_reasons
+    from tdcr_warp.io.scene import load_scene
+    from tdcr_warp.model.options import failure_reasons
+    from tdcr_warp.physics.statics import solve_static
 
     scene = _apply_overrides(load_scene(args.scene), args)
     out = _out_dir(args, Path("out") / Path(args.scene).stem, "results.json")
@@ -141,8 +141,8 @@ def cmd_static(args) -> int:
     _print_rods(sol.tip_position, sol.converged, sol.iterations, sol.residual, reasons)
     _write_npz(out / "shapes.npz", sol.to_npz)
     if not args.no_figures:
-        from .drawing import robot_geometry
-        from .plotting import MAX_RODS_DRAWN, plot_robot
+        from tdcr_warp.io.drawing import robot_geometry
+        from tdcr_warp.io.plotting import MAX_RODS_DRAWN, plot_robot
         n = min(B, MAX_RODS_DRAWN)
         geom = robot_geometry(scene.robot, sol.positions[:n], sol.rotations[:n], sol.s[:n], sol.tendon_tension_base[:n],
                               scene.display)
@@ -199,8 +199,8 @@ def _tendon_rows(sol, b: int) -> list[dict]:
 
 
 def cmd_simulate(args) -> int:
-    from .dynamics import Simulator
-    from .scene import load_scene
+    from tdcr_warp.io.scene import load_scene
+    from tdcr_warp.physics.dynamics import Simulator
 
     scene = _apply_overrides(load_scene(args.scene), args)
     spec = scene.dynamics
@@ -228,7 +228,7 @@ def cmd_simulate(args) -> int:
     _print_rods(traj.tip_position[-1], ok, traj.iterations.max(axis=0), traj.residual[-1], reasons)
     _write_npz(out / "trajectory.npz", traj.to_npz)
     if not args.no_figures:
-        from .plotting import plot_tip_history
+        from tdcr_warp.io.plotting import plot_tip_history
         plot_tip_history(traj.time, traj.tip_position, traj.tip_velocity, traj.tip_acceleration, out)
     if args.animate:
         _animate(scene, traj, sim.grid, out)
@@ -260,8 +260,8 @@ def _check_shapes(args, spec) -> None:
 
 
 def _html_static(scene, sol, out: Path) -> None:
-    """robot.html: the interactive viewer of the first solved rods (tdcr_warp.viewer)."""
-    from .viewer import MAX_RODS, write_viewer
+    """robot.html: the interactive viewer of the first solved rods (tdcr_warp.io.viewer)."""
+    from tdcr_warp.io.viewer import MAX_RODS, write_viewer
 
     n = min(len(sol.converged), MAX_RODS)
     names = [f"rod {b}" + ("" if sol.converged[b] else " (not converged)") for b in range(n)]
@@ -273,7 +273,7 @@ def _html_static(scene, sol, out: Path) -> None:
 
 def _html_run(scene, run, grid: np.ndarray, out: Path) -> None:
     """robot.html: the interactive viewer of a trajectory or closed-loop run from its stored shapes."""
-    from .viewer import write_run_viewer
+    from tdcr_warp.io.viewer import write_run_viewer
 
     drawn = []
     _write_atomic(out / "robot.html", lambda tmp: drawn.append(write_run_viewer(
@@ -282,9 +282,9 @@ def _html_run(scene, run, grid: np.ndarray, out: Path) -> None:
 
 
 def _animate(scene, run, grid: np.ndarray, out: Path) -> None:
-    """robot.gif of a trajectory or closed-loop run from its stored shapes (tdcr_warp.plotting)."""
-    from .drawing import robot_geometry
-    from .plotting import MAX_ROBOTS_DRAWN, animate_robot
+    """robot.gif of a trajectory or closed-loop run from its stored shapes (tdcr_warp.io.plotting)."""
+    from tdcr_warp.io.drawing import robot_geometry
+    from tdcr_warp.io.plotting import MAX_ROBOTS_DRAWN, animate_robot
 
     n = min(run.positions.shape[1], MAX_ROBOTS_DRAWN)
     tau = np.concatenate([scene.tensions[None, :n] if scene.tensions.shape[0] > 1 else
@@ -296,10 +296,10 @@ def _animate(scene, run, grid: np.ndarray, out: Path) -> None:
 
 
 def cmd_control(args) -> int:
-    from .control import METRIC_UNITS, control_metrics, run_closed_loop
-    from .jobs import scene_controller, scene_simulator
-    from .plotting import plot_control
-    from .scene import load_scene
+    from tdcr_warp.apps.control import METRIC_UNITS, control_metrics, run_closed_loop
+    from tdcr_warp.apps.jobs import scene_controller, scene_simulator
+    from tdcr_warp.io.plotting import plot_control
+    from tdcr_warp.io.scene import load_scene
 
     scene = _apply_overrides(load_scene(args.scene), args)
     spec, ctl = scene.dynamics, scene.control
@@ -346,9 +346,9 @@ def cmd_control(args) -> int:
 
 
 def cmd_ik(args) -> int:
-    """Inverse kinematics of the scene's [ik] targets (tdcr_warp.ik)."""
-    from .ik import solve_ik
-    from .scene import load_scene
+    """Inverse kinematics of the scene's [ik] targets (tdcr_warp.apps.ik)."""
+    from tdcr_warp.apps.ik import solve_ik
+    from tdcr_warp.io.scene import load_scene
 
     scene = _apply_overrides(load_scene(args.scene), args)
     ik = scene.ik
@@ -413,10 +413,10 @@ PREDICT_UNITS = {"rows": "1", "converged": "1", "rmse_mm": "mm", "rmse_aligned_m
 
 
 def cmd_predict(args) -> int:
-    """Predict measured tips of a scene with a [hardware] table (tdcr_warp.hardware)."""
-    from .hardware import metrics, predict, read_measurements
-    from .plotting import plot_prediction
-    from .scene import load_scene
+    """Predict measured tips of a scene with a [hardware] table (tdcr_warp.apps.hardware)."""
+    from tdcr_warp.apps.hardware import metrics, predict, read_measurements
+    from tdcr_warp.io.plotting import plot_prediction
+    from tdcr_warp.io.scene import load_scene
 
     scene = _apply_overrides(load_scene(args.scene), args)
     if scene.hardware is None:
@@ -441,11 +441,11 @@ def cmd_predict(args) -> int:
 
 
 def cmd_fit(args) -> int:
-    """Calibrate a [hardware] scene on measured rows (tdcr_warp.hardware.fit); writes fitted.toml."""
+    """Calibrate a [hardware] scene on measured rows (tdcr_warp.apps.hardware.fit); writes fitted.toml."""
     import tomli_w
 
-    from .hardware import fit, read_measurements
-    from .scene import load_scene
+    from tdcr_warp.apps.hardware import fit, read_measurements
+    from tdcr_warp.io.scene import load_scene
 
     scene = load_scene(args.scene)
     if scene.hardware is None:
@@ -476,10 +476,16 @@ def cmd_fit(args) -> int:
 
 def cmd_sweep(args) -> int:
     """montecarlo, workspace and gain-grid: a [sweep] over the scene, run in chunks."""
-    from .jobs import SweepJob, failure_counts, summarize_gain_grid, summarize_montecarlo, summarize_workspace
-    from .scene import load_scene
-    from .statics import solve_static
-    from .sweep import SweepSpec, peak_memory_mb, run_sweep
+    from tdcr_warp.apps.jobs import (
+        SweepJob,
+        failure_counts,
+        summarize_gain_grid,
+        summarize_montecarlo,
+        summarize_workspace,
+    )
+    from tdcr_warp.apps.sweep import SweepSpec, peak_memory_mb, run_sweep
+    from tdcr_warp.io.scene import load_scene
+    from tdcr_warp.physics.statics import solve_static
 
     base = _apply_overrides(load_scene(args.scene), args)
     data = dict(base.source)
@@ -540,9 +546,9 @@ def cmd_sweep(args) -> int:
 
 def _grid_reference(path: str, gains: list[str], dt: float, duration: float) -> dict:
     """The best run of the finished gain-grid sweep in ``path`` (its summary.json), with the
-    search's objective of it (tdcr_warp.gainsearch.gain_objective): ``search --grid``."""
-    from .gainsearch import gain_objective
-    from .store import read_manifest
+    search's objective of it (tdcr_warp.apps.gainsearch.gain_objective): ``search --grid``."""
+    from tdcr_warp.apps.gainsearch import gain_objective
+    from tdcr_warp.io.store import read_manifest
 
     out = Path(path)
     man = read_manifest(out)
@@ -563,10 +569,10 @@ def _grid_reference(path: str, gains: list[str], dt: float, duration: float) -> 
 
 def cmd_search(args) -> int:
     """CMA-ES over the [search] gains, each generation one batch of closed loops
-    (tdcr_warp.gainsearch); with --grid beside the best of a finished gain-grid sweep."""
-    from .gainsearch import search_gains
-    from .plotting import plot_search
-    from .scene import load_scene, scene_from_dict
+    (tdcr_warp.apps.gainsearch); with --grid beside the best of a finished gain-grid sweep."""
+    from tdcr_warp.apps.gainsearch import search_gains
+    from tdcr_warp.io.plotting import plot_search
+    from tdcr_warp.io.scene import load_scene, scene_from_dict
 
     base = _apply_overrides(load_scene(args.scene), args)
     if base.search is None or base.dynamics is None:
@@ -613,7 +619,7 @@ def cmd_search(args) -> int:
         "best": {"gains": res.gains, "objective": res.objective, **res.metrics}, "history": res.history,
         "objective_note": "settled: settling time + (dt/2) c/(c + 1e-3 N) (c: chatter); outside the 0.5 mm band at "
                           "the end: duration + dt + e/(e + 5e-4 m) (e: final error); a failed step: duration + dt + "
-                          "1; lower is better, in the gain grid's order (tdcr_warp.gainsearch)",
+                          "1; lower is better, in the gain grid's order (tdcr_warp.apps.gainsearch)",
     }
     if grid is not None:
         results["grid"] = grid | {"search_at_least_as_good": res.objective <= grid["best"]["objective"]}
@@ -636,9 +642,9 @@ def cmd_search(args) -> int:
 
 
 def _linearised(data: dict, device, summary: dict) -> dict:
-    """The first-order tip spread of the Monte-Carlo scene (tdcr_warp.uncertainty) beside the
+    """The first-order tip spread of the Monte-Carlo scene (tdcr_warp.apps.uncertainty) beside the
     sampled one: per axis the standard deviations [m] and their ratio, or why it is not there."""
-    from .uncertainty import linearised_spread
+    from tdcr_warp.apps.uncertainty import linearised_spread
 
     try:
         lin = linearised_spread(data, device)
@@ -670,7 +676,7 @@ def _positive_int(text: str) -> int:
 def build_parser() -> argparse.ArgumentParser:
     import warp as wp
 
-    from . import __version__
+    from tdcr_warp import __version__
 
     ap = argparse.ArgumentParser(prog="tdcr-warp", description="Batched tendon-driven continuum robots on Warp.")
     ap.add_argument("--version", action="version", version=f"%(prog)s {__version__} (Warp {wp.__version__})")
@@ -689,7 +695,7 @@ def build_parser() -> argparse.ArgumentParser:
         p = sub.add_parser(name, help=helptext)
         p.add_argument("scene", help="scene file (TOML)")
         if name in ("predict", "fit"):
-            p.add_argument("data", nargs="+", help="keypoint CSV file(s) (tdcr_warp.hardware)")
+            p.add_argument("data", nargs="+", help="keypoint CSV file(s) (tdcr_warp.apps.hardware)")
         if name == "fit":
             p.add_argument("--max-iter", type=_positive_int, default=30,
                            help="Levenberg-Marquardt iterations (default 30)")
@@ -748,14 +754,14 @@ def main(argv=None) -> int:
     130 interrupted). A malformed command line (argparse) raises SystemExit(2) after printing
     the usage. Ctrl-C (SIGINT, KeyboardInterrupt) ends any command with one line on stderr and
     no completion file; from the first SIGINT on, SIGINT is ignored (_on_sigint)."""
-    from .cluster import SweepError
+    from tdcr_warp.apps.cluster import SweepError
 
     args = build_parser().parse_args(argv)
     own = (threading.current_thread() is threading.main_thread()
            and signal.getsignal(signal.SIGINT) is signal.default_int_handler)
     if own:  # (not where SIGINT is ignored, as in a background job, or handled by the caller)
         signal.signal(signal.SIGINT, _on_sigint)
-    from .solver import COMPILE_NOTICE, set_compile_notice
+    from tdcr_warp.core.solver import COMPILE_NOTICE, set_compile_notice
 
     notice = COMPILE_NOTICE["enabled"]
     set_compile_notice(not args.quiet)

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .robot import InputError, real_array
+from tdcr_warp.model.robot import InputError, real_array
 
 __all__ = ["TipPath", "path_from_table"]
 

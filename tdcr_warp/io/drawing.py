@@ -1,6 +1,6 @@
 """The robot as roboticists draw it: the backbone, its spacer disks, every tendon's path through
 the disks with its tension, the base and tip frames. One geometry, used by the figures
-(:mod:`tdcr_warp.plotting`), the animations and the HTML viewer (:mod:`tdcr_warp.viewer`).
+(:mod:`tdcr_warp.io.plotting`), the animations and the HTML viewer (:mod:`tdcr_warp.io.viewer`).
 
 Disks are drawn, not modelled: the rod's physics is continuous (the coupled model routes each
 tendon along its path r(s) in the body frame). The ``[display]`` table of a scene sets how many
@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .robot import InputError, Robot
+from tdcr_warp.model.robot import InputError, Robot
 
 __all__ = ["DISPLAY_KEYS", "RobotGeometry", "display_options", "robot_geometry"]
 

@@ -2,10 +2,10 @@
 GPUs and machines of a Ray cluster (``pip install -e ".[ray]"``).
 
 A task receives the base scene (put in Ray's object store once), its chunk's sample rows,
-the picklable job and the sweep's :class:`~tdcr_warp.store.ChunkStore`; it builds the batch,
+the picklable job and the sweep's :class:`~tdcr_warp.io.store.ChunkStore`; it builds the batch,
 solves it and writes its own chunk into the output folder (which the workers must see: one
 machine, or a shared file system), returning only its count of failed rods; the driver
-(:func:`tdcr_warp.sweep.run_sweep`) checks what arrives.
+(:func:`tdcr_warp.apps.sweep.run_sweep`) checks what arrives.
 Worker processes are reused from task to task, so a worker compiles or loads each Warp
 module once, not once per chunk; workers that share a disk also share the kernel cache
 (``WARP_CACHE_PATH`` of the driver, when set, is passed on to them). A task whose worker
@@ -17,8 +17,8 @@ from __future__ import annotations
 import os
 import time
 
-from .robot import InputError
-from .chunk import solve_chunk
+from tdcr_warp.apps.chunk import solve_chunk
+from tdcr_warp.model.robot import InputError
 
 __all__ = ["SweepError", "ray_chunks"]
 

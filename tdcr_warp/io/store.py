@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .robot import InputError
+from tdcr_warp.model.robot import InputError
 
 __all__ = ["ChunkError", "ChunkStore", "SweepLock", "clear_outputs", "read_manifest", "write_manifest"]
 

@@ -26,9 +26,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .robot import InputError
-from .scene import Scene, scene_from_dict
-from .statics import solve_static
+from tdcr_warp.io.scene import Scene, scene_from_dict
+from tdcr_warp.model.robot import InputError
+from tdcr_warp.physics.statics import solve_static
 
 __all__ = ["FIT_PARAMETERS", "Measurements", "fit", "metrics", "predict", "read_measurements"]
 

@@ -7,7 +7,7 @@ b_c tau = C e_t + Xdd_d - a_c + eps sw(S) + k S, allocated into tensions 0 <= ta
 a bounded least-squares problem per rod (so K tendons reach targets off the tendon planes).
 With ``command = "displacement"`` the controller commands motor displacements instead (what
 hardware accepts): the same law on the model X2_t = a_c + b_c q, allocated within the motor's
-range, the tension limit and the slack of each tendon (tdcr_warp/allocation.py). It tracks the
+range, the tension limit and the slack of each tendon (tdcr_warp/apps/allocation.py). It tracks the
 tip across the base axis (x, y); the height follows on the surface the robot reaches (moving it
 off that surface would take co-contraction: on examples/displacement_control.toml a 0.1 mm
 squeeze of the rod costs about 3 N on each tendon of a pair).
@@ -33,20 +33,19 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from .allocation import allocate_displacements
-from .dynamics import Simulator
-from .progress import Progress
-from .robot import InputError, Robot, real_array, require_memory
-from .statics import reference_lengths, solve_static
-from .tippath import TipPath
-from .types import StaticOptions
+from tdcr_warp.apps.allocation import allocate_displacements
+from tdcr_warp.core.progress import Progress
+from tdcr_warp.model.options import COMMANDS, StaticOptions
+from tdcr_warp.model.robot import InputError, Robot, real_array, require_memory
+from tdcr_warp.model.tippath import TipPath
+from tdcr_warp.physics.dynamics import Simulator
+from tdcr_warp.physics.statics import reference_lengths, solve_static
 
 __all__ = ["ControlRun", "TipController", "allocate", "control_metrics", "run_closed_loop", "sliding_command",
            "static_target"]
 
 METHODS = ("smc", "boundary_layer", "integral")
 INPUT_MODELS = ("jacobian", "alpha")
-COMMANDS = ("tension", "displacement")
 LATERAL = np.array([1.0, 1.0, 0.0])  # the axes a displacement command tracks (x, y: across the base axis)
 
 
@@ -107,7 +106,7 @@ def sliding_command(e: np.ndarray, e_t: np.ndarray, ac: np.ndarray, *, C: np.nda
 class TipController:
     """Sliding-mode tip controller for the B rods of a :class:`Simulator`.
 
-    target (3,) or (B, 3) [m], or a :class:`~tdcr_warp.tippath.TipPath` (a desired trajectory:
+    target (3,) or (B, 3) [m], or a :class:`~tdcr_warp.model.tippath.TipPath` (a desired trajectory:
     its velocity and acceleration enter the sliding surface and the law); gain_c, gain_k:
     diagonals (3,) or (B, 3) [1/s]; epsilon [m/s^2]
     and phi [m/s] (boundary layer): float or (B,); tension_max [N]: float, (K,) or (B, K).
@@ -219,7 +218,7 @@ class TipController:
 
     def _linearise(self, u: np.ndarray) -> None:
         """p_s(u) and J = d p_s / d u at the command u (tensions or displacements): one batched
-        static solve with its tip Jacobian (tdcr_warp/sensitivity.py: probes of the converged
+        static solve with its tip Jacobian (tdcr_warp/physics/sensitivity.py: probes of the converged
         shooting problem, no extra solves); commanding displacements, also the tensions, their
         Jacobian, the slack set and each slack tendon's spare length."""
         disp = self.command == "displacement"

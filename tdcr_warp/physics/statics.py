@@ -3,7 +3,7 @@
 Newton on the 6 base unknowns (n(0), m(0)) per rod (kernels/newton.py), with a
 forward-difference Jacobian, Broyden updates between rebuilds, backtracking on the residual
 norm, a bounded step and a per-rod verdict; a per-rod load continuation where the start is
-far from the answer (tdcr_warp/homotopy.py). On the CPU the batch is split over threads
+far from the answer (tdcr_warp/core/homotopy.py). On the CPU the batch is split over threads
 (Warp releases the GIL while a CPU kernel runs). Repeated solves of the same robot object and
 batch shape reuse its device arrays (``StaticProblem``).
 """
@@ -19,15 +19,15 @@ from dataclasses import asdict, dataclass, field, fields, replace
 import numpy as np
 import warp as wp
 
-from .build import Tables
-from .homotopy import continuation_steps, load_continuation
-from .kernels import layout
-from .parallel import parallel, split
-from .robot import InputError, Robot, check_command, check_slip, real_array, require_memory
-from .sensitivity import linearise, parameter_tables
-from .solver import Shooting
-from .stability import jacobi_index, node_routing
-from .types import StaticOptions, describe_status
+from tdcr_warp.core.build import Tables
+from tdcr_warp.core.homotopy import continuation_steps, load_continuation
+from tdcr_warp.core.parallel import parallel, split
+from tdcr_warp.core.solver import Shooting
+from tdcr_warp.kernels import layout
+from tdcr_warp.model.options import StaticOptions, describe_status
+from tdcr_warp.model.robot import InputError, Robot, check_command, check_slip, real_array, require_memory
+from tdcr_warp.physics.sensitivity import linearise, parameter_tables
+from tdcr_warp.physics.stability import jacobi_index, node_routing
 
 __all__ = ["StaticOptions", "StaticProblem", "StaticSolution", "reference_lengths", "solve_static"]
 
@@ -209,8 +209,8 @@ def _constant_curvature(robot: Robot, tau: np.ndarray, opts: StaticOptions) -> S
 class StaticProblem:
     """The device arrays of one robot batch at one shape (B rods, options, device), built
     once and reused by every solve of that shape: the tables, and per CPU thread the
-    Model / Control / State / Work of its rods (tdcr_warp.solver.Shooting). ``mode``
-    "reference": every tendon in tension control, frictionless (tdcr_warp.build.scene_features)."""
+    Model / Control / State / Work of its rods (tdcr_warp.core.solver.Shooting). ``mode``
+    "reference": every tendon in tension control, frictionless (tdcr_warp.core.build.scene_features)."""
 
     def __init__(self, robot: Robot, B: int, opts: StaticOptions, device, mode: str = "solve"):
         self.robot, self.B, self.opts, self.device = robot, B, opts, device
@@ -259,7 +259,7 @@ class StaticProblem:
 
     @functools.cached_property
     def node_routes(self) -> tuple[np.ndarray, np.ndarray]:
-        """r and r' of every tendon at the grid's nodes (tdcr_warp.stability.node_routing), once."""
+        """r and r' of every tendon at the grid's nodes (tdcr_warp.physics.stability.node_routing), once."""
         return node_routing(self.robot, self.tables.grid)
 
     @functools.cached_property
@@ -314,7 +314,7 @@ class StaticProblem:
               slip: np.ndarray | None = None, history: StaticSolution | None = None, *,
               sensitivities: bool = False, stability: str = "off", parameters: tuple = ()) -> StaticSolution:
         """One solve of the batch; with ``sensitivities`` or ``stability`` (see StaticOptions)
-        also the rods' sensitivities (``parameters``: robot field names, tdcr_warp.sensitivity)."""
+        also the rods' sensitivities (``parameters``: robot field names, tdcr_warp.physics.sensitivity)."""
         opts, tables, B = self.opts, self.tables, self.B
         ptables = parameter_tables(self.robot, tables, parameters, opts.precision, opts.nodes, opts.specialize,
                                    opts.kink_loads, opts.tendon_states) if parameters else []
@@ -626,7 +626,7 @@ def solve_static(robot: Robot, tensions=None, *, displacements=None, slip=None, 
     device: "cpu" or "cuda:0" (None: Warp's default). initial: an earlier solution of the
     same batch size to warm-start from (its unknowns and Jacobian). parameters: robot fields
     to differentiate the tip pose by (``parameter_jacobian``), e.g. "youngs_modulus",
-    "tendons[0].offset[1]", "tip_force[0]" (tdcr_warp.sensitivity; under displacement control
+    "tendons[0].offset[1]", "tip_force[0]" (tdcr_warp.physics.sensitivity; under displacement control
     the motor's given length is held, not the displacement).
     """
     opts = (options or StaticOptions()).override(**overrides)

@@ -20,10 +20,10 @@ from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
-from .control import per_rod
-from .robot import InputError, Robot, real_array
-from .statics import StaticSolution, solve_static
-from .types import StaticOptions
+from tdcr_warp.apps.control import per_rod
+from tdcr_warp.model.options import StaticOptions
+from tdcr_warp.model.robot import InputError, Robot, real_array
+from tdcr_warp.physics.statics import StaticSolution, solve_static
 
 __all__ = ["IKResult", "solve_ik"]
 

@@ -4,7 +4,7 @@ Under displacement control the motor sets how much tendon each wire has; the ten
 from the rod's shape. Around a solved state (displacements q0, tensions tau0) the statics give
 the tip Jacobian J = dp/dq, the tension Jacobian T = dtau/dq of the taut tendons and, for the
 slack ones, G = d gap / dq, the rate at which their spare length changes
-(tdcr_warp/sensitivity.py): pulling one tendon also stretches its neighbours, so T is far from
+(tdcr_warp/physics/sensitivity.py): pulling one tendon also stretches its neighbours, so T is far from
 diagonal, and it takes 0.96 mm of slack out of its antagonist per mm on the report's robot.
 The command q for a desired input v = b_c q (b_c = w^2 J in the controller's model) solves, per
 rod,

@@ -18,13 +18,24 @@ import time
 import numpy as np
 import warp as wp
 
-from .build import (PRECISIONS, Device, Tables, make_control, make_state, make_step, make_work, pack_tendons,
-                    put_model, scene_features, set_tensions)
-from .kernels import layout
-from .kernels.history import make_history_kernels
-from .kernels.rod import MODELS
-from .kernels.shooting import make_shooting_kernels
-from .robot import Robot
+from tdcr_warp.core.build import (
+    PRECISIONS,
+    Device,
+    Tables,
+    make_control,
+    make_state,
+    make_step,
+    make_work,
+    pack_tendons,
+    put_model,
+    scene_features,
+    set_tensions,
+)
+from tdcr_warp.kernels import layout
+from tdcr_warp.kernels.history import make_history_kernels
+from tdcr_warp.kernels.rod import MODELS
+from tdcr_warp.kernels.shooting import make_shooting_kernels
+from tdcr_warp.model.robot import Robot
 
 CHECK_EVERY = 4  # CUDA: Newton iterations between reads of the active count
 COARSE_MIN_NODES = 16  # statics: coarse first-Jacobian probes from this many intervals on

@@ -12,7 +12,7 @@ stiffness, and the tendons' convex path-length terms, are positive definite), an
 counts crossings with their multiplicity (a round rod buckles in two planes at once).
 
 The fields come from the shooting problem itself: the 12-dimensional solution space of the
-linearised equations is spanned by the 6 probes of the base wrench (tdcr_warp/sensitivity.py),
+linearised equations is spanned by the 6 probes of the base wrench (tdcr_warp/physics/sensitivity.py),
 3 translations of the whole rod (exact: nothing depends on where the rod is) and 3 rotations
 of it (exact for the rod and its tendons; dead distributed and point loads are rotated back by
 one probe each). The tip condition (the momenta vanish at L: no change of the tip load) picks a
@@ -38,10 +38,10 @@ from dataclasses import replace
 
 import numpy as np
 
-from .build import Tables, _cross, put_model
-from .kernels import layout
-from .robot import Robot
-from .sensitivity import PROBE_REL, vee_rate
+from tdcr_warp.core.build import Tables, _cross, put_model
+from tdcr_warp.kernels import layout
+from tdcr_warp.model.robot import Robot
+from tdcr_warp.physics.sensitivity import PROBE_REL, vee_rate
 
 __all__ = ["jacobi_index", "node_routing", "totals"]
 

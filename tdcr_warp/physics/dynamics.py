@@ -16,16 +16,16 @@ from dataclasses import asdict, dataclass
 import numpy as np
 import warp as wp
 
-from .build import Tables
-from .homotopy import added_damping, retry, tension_increment
-from .kernels import layout
-from .kernels.history import make_history_kernels
-from .parallel import parallel, split
-from .progress import Progress
-from .robot import InputError, Robot, check_command, check_tensions, real_array, require_memory
-from .solver import Shooting
-from .statics import StaticSolution, available_lengths, reference_lengths, settle_slack, solve_static
-from .types import StaticOptions
+from tdcr_warp.core.build import Tables
+from tdcr_warp.core.homotopy import added_damping, retry, tension_increment
+from tdcr_warp.core.parallel import parallel, split
+from tdcr_warp.core.progress import Progress
+from tdcr_warp.core.solver import Shooting
+from tdcr_warp.kernels import layout
+from tdcr_warp.kernels.history import make_history_kernels
+from tdcr_warp.model.options import StaticOptions
+from tdcr_warp.model.robot import InputError, Robot, check_command, check_tensions, real_array, require_memory
+from tdcr_warp.physics.statics import StaticSolution, available_lengths, reference_lengths, settle_slack, solve_static
 
 __all__ = ["Simulator", "StepResult", "Trajectory", "bdf_alpha_coefficients"]
 

@@ -1,7 +1,7 @@
 """Adaptive search of controller gains: CMA-ES where every generation is one batch of closed loops.
 
 The ``gain-grid`` sweep runs one closed loop per point of an exhaustive grid of gains and ranks
-them (:func:`tdcr_warp.jobs.summarize_gain_grid`): the fastest settled run, ties broken by least
+them (:func:`tdcr_warp.apps.jobs.summarize_gain_grid`): the fastest settled run, ties broken by least
 chatter; if nothing settled, the smallest final error. :func:`search_gains` looks for gains at
 least as good by that ranking over the same ranges with far fewer closed loops, by CMA-ES
 (Hansen's covariance matrix adaptation evolution strategy, the ``cmaes`` package):
@@ -16,9 +16,9 @@ least as good by that ranking over the same ranges with far fewer closed loops, 
   range).
 - **One batch per generation.** A generation's candidates run as one Simulator of B = population
   rods, each rod with its own gains, through the gain grid's own chunk job
-  (:func:`tdcr_warp.chunk.solve_chunk` of the ``gain-grid`` :class:`~tdcr_warp.jobs.SweepJob`:
+  (:func:`tdcr_warp.apps.chunk.solve_chunk` of the ``gain-grid`` :class:`~tdcr_warp.apps.jobs.SweepJob`:
   the scene with the candidates as per-rod control values, run by
-  :func:`~tdcr_warp.jobs.control_job`), so a candidate's metrics are those the grid reports
+  :func:`~tdcr_warp.apps.jobs.control_job`), so a candidate's metrics are those the grid reports
   for the same gains, bit for bit.
 - **Budget.** ``budget`` closed loops exactly: the last generation is cut to what the budget
   leaves (those loops are evaluated but not told to CMA-ES).
@@ -34,7 +34,7 @@ least as good by that ranking over the same ranges with far fewer closed loops, 
   metrics and result.
 
 The objective (minimised), for a run of duration D = steps dt, settling time t_s [s], chatter
-index c [N] and final error e [m] (``tdcr_warp.control.control_metrics``; band = 0.5 mm):
+index c [N] and final error e [m] (``tdcr_warp.apps.control.control_metrics``; band = 0.5 mm):
 
     f = t_s + (dt / 2) c / (c + c_ref)     settled: every step converged, |e| stays in the band
     f = D + dt + e / (e + band)            every step converged, outside the band at the end
@@ -57,8 +57,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .robot import InputError
-from .scene import Scene, search_options
+from tdcr_warp.io.scene import Scene, search_options
+from tdcr_warp.model.robot import InputError
 
 __all__ = ["BAND", "CHATTER_REF", "ClosedLoops", "SearchResult", "cma_search", "gain_objective", "search_gains"]
 
@@ -181,7 +181,7 @@ class ClosedLoops:
     is called after every time step; ``device``: the Warp device."""
 
     def __init__(self, scene: Scene, *, device=None, progress=None):
-        from .jobs import SweepJob
+        from tdcr_warp.apps.jobs import SweepJob
 
         if scene.dynamics is None or scene.control is None:
             raise InputError("a gain search needs [dynamics] and [control] tables")
@@ -190,7 +190,7 @@ class ClosedLoops:
         self.dt, self.duration = scene.dynamics.dt, scene.dynamics.steps * scene.dynamics.dt
 
     def __call__(self, rows: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-        from .chunk import solve_chunk
+        from tdcr_warp.apps.chunk import solve_chunk
 
         res = solve_chunk(self.job, self.data, rows, progress=self.progress)
         ok = np.asarray(res["ok"], dtype=bool)

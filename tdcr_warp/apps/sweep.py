@@ -19,9 +19,9 @@ Field names: ``robot.<key>``, ``loads.<gravity|tip_force|tip_moment>[c]``,
 ``dynamics.<damping_shear|damping_bending|drag>[c]``, ``control.<gain_c[c]|gain_k[c]|target[c]|
 epsilon|phi|tension_max>``; a vector field without an index sets all its components. Each
 chunk's results are written to the output folder as soon as it is done (Parquet and Zarr,
-checked on every read: :mod:`tdcr_warp.store`), so ``resume=True`` continues where an
+checked on every read: :mod:`tdcr_warp.io.store`), so ``resume=True`` continues where an
 interrupted sweep stopped, with either backend (in-process, or Ray tasks on a cluster:
-:mod:`tdcr_warp.cluster`), and memory stays flat in the number of rods.
+:mod:`tdcr_warp.apps.cluster`), and memory stays flat in the number of rods.
 """
 
 from __future__ import annotations
@@ -39,9 +39,19 @@ from pathlib import Path
 
 import numpy as np
 
-from .chunk import parse_field, solve_chunk
-from .robot import InputError
-from .store import FORMAT, TABLE, ChunkError, ChunkStore, SweepLock, clear_outputs, read_manifest, write_manifest
+from tdcr_warp.apps.chunk import solve_chunk
+from tdcr_warp.io.store import (
+    FORMAT,
+    TABLE,
+    ChunkError,
+    ChunkStore,
+    SweepLock,
+    clear_outputs,
+    read_manifest,
+    write_manifest,
+)
+from tdcr_warp.model.fields import parse_field
+from tdcr_warp.model.robot import InputError
 
 __all__ = ["Samples", "SweepRun", "SweepSpec", "make_samples", "open_sweep", "run_sweep"]
 
@@ -181,7 +191,7 @@ def make_samples(spec: SweepSpec) -> dict[str, np.ndarray]:
 
 def fingerprint(data: dict, job_name: str, chunk: int, meta: dict | None = None) -> str:
     """What identifies a sweep: its scene (with the sweep table), job, chunk size and options.
-    A [search] table (tdcr_warp.gainsearch) changes no sweep row, so it is left out: a gain grid
+    A [search] table (tdcr_warp.apps.gainsearch) changes no sweep row, so it is left out: a gain grid
     kept as a search's reference resumes whatever the search's options."""
     scene = {k: v for k, v in data.items() if k != "search"}
     ident = {"format": FORMAT, "job": job_name, "chunk": chunk, "scene": scene, "meta": meta or {}}
@@ -196,7 +206,7 @@ def chunk_memory_bytes(data: dict, size: int) -> int:
     """An upper estimate of the memory one chunk of ``size`` rods takes while it is solved:
     the per-rod scene rows, the solver's tables and results (shapes at N + 1 nodes, tension
     profiles, Jacobians) and their host copies."""
-    from .scene import scene_from_dict
+    from tdcr_warp.io.scene import scene_from_dict
 
     base = scene_from_dict({k: v for k, v in data.items() if k not in ("sweep", "uncertainty")})
     N, K = base.options.nodes, base.robot.n_tendons
@@ -241,7 +251,7 @@ class SweepRun:
 
 def open_sweep(out_dir) -> SweepRun:
     """The complete sweep in ``out_dir``, to read chunk by chunk (``parts``) or whole (``load``);
-    every read is checked (a bad chunk raises :class:`~tdcr_warp.store.ChunkError`)."""
+    every read is checked (a bad chunk raises :class:`~tdcr_warp.io.store.ChunkError`)."""
     out = Path(out_dir)
     man = read_manifest(out)
     if man is None or man.get("legacy") or man.get("state") != "complete":
@@ -298,18 +308,18 @@ def run_sweep(data: dict, job, out_dir, *, chunk: int | None = None, resume: boo
               backend: str = "local", address: str | None = None, workers: int | None = None,
               gpus_per_task: float = 0.0, meta: dict | None = None) -> SweepRun | None:
     """Run ``job(scene) -> dict of per-rod arrays`` over every sample row, chunk by chunk, into
-    ``out_dir`` (layout and rules: :mod:`tdcr_warp.store`).
+    ``out_dir`` (layout and rules: :mod:`tdcr_warp.io.store`).
 
     backend "local" runs the chunks in this process; "ray" runs them as Ray tasks that write
-    their own chunks (see :mod:`tdcr_warp.cluster`: ``address`` of a cluster, else a local one
-    of ``workers`` CPUs; ``job`` must be picklable, e.g. a :class:`~tdcr_warp.jobs.SweepJob`).
+    their own chunks (see :mod:`tdcr_warp.apps.cluster`: ``address`` of a cluster, else a local one
+    of ``workers`` CPUs; ``job`` must be picklable, e.g. a :class:`~tdcr_warp.apps.jobs.SweepJob`).
     A rod's results do not depend on the backend, the chunk order or the chunk size. Returns
     the :class:`SweepRun`, or None when ``max_chunks`` stopped it early (resume later, with
     either backend). ``resume`` keeps the checked chunks of the same sweep (a bad one is
     recomputed, and said so on stderr); a folder holding another sweep needs ``overwrite``.
     ``meta`` (JSON-able) joins the fingerprint.
     """
-    from .progress import Progress
+    from tdcr_warp.core.progress import Progress
 
     if backend not in ("local", "ray"):
         raise InputError(f"backend must be 'local' or 'ray', got {backend!r}")
@@ -365,7 +375,7 @@ def run_sweep(data: dict, job, out_dir, *, chunk: int | None = None, resume: boo
         if backend == "local":
             finished = _local_chunks(data, job, todo, store, samples, show if bar else None)
         else:
-            from .cluster import ray_chunks
+            from tdcr_warp.apps.cluster import ray_chunks
             finished = ray_chunks(data, job, todo, store, samples, address=address, workers=workers,
                                   gpus_per_task=gpus_per_task)
         try:

@@ -1,0 +1,172 @@
+"""The package's import graph and the size of its pieces, read from the source with `ast`.
+
+    python experiments/import_graph.py            # layers, floors, cycles, largest pieces
+    python experiments/import_graph.py --check    # exit 1 on an upward import, a cycle or an oversized piece
+
+Every import counts, at module level or inside a function. ``kernels/`` is mapped to
+``tdcr_warp.kernels`` as the package installs it. The rules (docs/architecture.md):
+
+- a module imports only from its own layer or the layers below it (LAYERS, top first);
+- the modules form no cycle (within a layer too);
+- no function longer than MAX_FUNCTION lines and no class longer than MAX_CLASS lines.
+
+The floor of a module is 0 when it imports no package module, else one more than the highest
+floor among its imports.
+"""
+
+from __future__ import annotations
+
+import argparse
+import ast
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+LAYERS = ("cli", "apps", "physics", "core", "io", "model", "kernels")  # top first
+MAX_FUNCTION = 80
+MAX_CLASS = 150
+
+
+def modules(root: Path = ROOT) -> dict[str, Path]:
+    """Dotted module name -> source file, for tdcr_warp/ and kernels/."""
+    out = {}
+    for folder, package in (("tdcr_warp", "tdcr_warp"), ("kernels", "tdcr_warp.kernels")):
+        for path in sorted((root / folder).rglob("*.py")):
+            parts = list(path.relative_to(root / folder).with_suffix("").parts)
+            if parts[-1] == "__init__":
+                parts = parts[:-1]
+            out[".".join([package, *parts])] = path
+    return out
+
+
+def imports(name: str, path: Path, known: dict[str, Path]) -> set[str]:
+    """The package modules that module `name` imports (each 'from X import y' counts X, and X.y
+    when that is a module)."""
+    is_package = path.name == "__init__.py"
+    package = name if is_package else name.rpartition(".")[0]
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package.split(".")[: len(package.split(".")) - node.level + 1]
+                target = ".".join(base + ([node.module] if node.module else []))
+            else:
+                target = node.module or ""
+            candidates = [target] + [f"{target}.{alias.name}" for alias in node.names]
+        elif isinstance(node, ast.Import):
+            candidates = [alias.name for alias in node.names]
+        else:
+            continue
+        found.update(c for c in candidates if c in known)
+    found.discard(name)
+    return found
+
+
+def layer_of(name: str) -> str | None:
+    parts = name.split(".")
+    return parts[1] if len(parts) > 1 and parts[1] in LAYERS else None
+
+
+def graph(root: Path = ROOT) -> dict[str, set[str]]:
+    known = modules(root)
+    return {name: imports(name, path, known) for name, path in known.items()}
+
+
+def upward_imports(g: dict[str, set[str]]) -> list[str]:
+    """'a -> b' for each import of a higher layer (the package's own __init__ files are exempt:
+    tdcr_warp/__init__.py re-exports the public API)."""
+    bad = []
+    for name, deps in g.items():
+        here = layer_of(name)
+        if here is None:
+            continue
+        for dep in deps:
+            there = layer_of(dep)
+            if there is not None and LAYERS.index(there) < LAYERS.index(here):
+                bad.append(f"{name} -> {dep} ({here} imports {there}, a layer above it)")
+    return sorted(bad)
+
+
+def cycles(g: dict[str, set[str]]) -> list[list[str]]:
+    """The strongly connected components with more than one module (Tarjan)."""
+    index, low, stack, on_stack, out = {}, {}, [], set(), []
+
+    def visit(v):
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on_stack.add(v)
+        for w in g[v]:
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on_stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            component = []
+            while True:
+                w = stack.pop()
+                on_stack.discard(w)
+                component.append(w)
+                if w == v:
+                    break
+            if len(component) > 1:
+                out.append(sorted(component))
+
+    sys.setrecursionlimit(10_000)
+    for v in g:
+        if v not in index:
+            visit(v)
+    return out
+
+
+def floors(g: dict[str, set[str]]) -> dict[str, int]:
+    """Each module's floor (needs an acyclic graph)."""
+    memo: dict[str, int] = {}
+
+    def floor(v):
+        if v not in memo:
+            memo[v] = 1 + max((floor(w) for w in g[v]), default=-1)
+        return memo[v]
+
+    return {v: floor(v) for v in g}
+
+
+def pieces(root: Path = ROOT) -> list[tuple[int, str, str]]:
+    """(lines, 'file:name', 'function' | 'class') of every function and class, longest first."""
+    out = []
+    for name, path in modules(root).items():
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+                kind = "class" if isinstance(node, ast.ClassDef) else "function"
+                out.append((node.end_lineno - node.lineno + 1, f"{path.relative_to(root)}:{node.name}", kind))
+    return sorted(out, reverse=True)
+
+
+def oversized(root: Path = ROOT) -> list[str]:
+    limit = {"function": MAX_FUNCTION, "class": MAX_CLASS}
+    return [f"{where}: {kind} of {n} lines (limit {limit[kind]})" for n, where, kind in pieces(root) if n > limit[kind]]
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--check", action="store_true", help="exit 1 on an upward import, a cycle or an oversized piece")
+    args = parser.parse_args(argv)
+    g = graph()
+    problems = upward_imports(g) + [" -> ".join(c) + " (cycle)" for c in cycles(g)] + oversized()
+    if not cycles(g):
+        fl = floors(g)
+        print(f"{len(g)} modules on {max(fl.values()) + 1} floors")
+        for layer in LAYERS:
+            names = sorted((n for n in g if layer_of(n) == layer), key=lambda n: (fl[n], n))
+            print(f"  {layer:8s} " + ", ".join(f"{n.split('.', 2)[-1]}({fl[n]})" for n in names))
+    functions = [p for p in pieces() if p[2] == "function"]
+    classes = [p for p in pieces() if p[2] == "class"]
+    print(f"largest function: {functions[0][1]} ({functions[0][0]} lines); "
+          f"largest class: {classes[0][1]} ({classes[0][0]} lines)")
+    for line in problems:
+        print("PROBLEM:", line)
+    return 1 if (args.check and problems) else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,1 @@
+"""What a user solves, composed of core pieces: sensitivities, stability, statics, dynamics."""
