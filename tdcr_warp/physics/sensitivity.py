@@ -178,26 +178,55 @@ def linearise(sh, tau: np.ndarray, tables: Tables, lo: int, hi: int, precision: 
     with ``shapes`` also ``base`` and ``fields`` (the node arrays of x* and, per base-wrench
     unknown, of its probe above and (central differences) below or None, and their steps
     ``field_steps`` (b, 6)) for the stability test."""
-    rel = PROBE_REL[precision]
     x = sh.newton.x.numpy().astype(np.float64)
-    b, nu = x.shape
+    b = x.shape[0]
     K = tau.shape[1]
     spent = 0
     if base is None:
         base = sh.probe(x, shapes=shapes)
         spent += 1
-    hx = rel * np.maximum(1.0, np.abs(x))
     rod = np.broadcast_to(tables.rows("rod", lo, hi), (b, layout.ROD_WIDTH))
+    hx = _unknown_steps(x, rod, precision)
+    J, Yx, fields, probes = _unknown_rates(sh, x, hx, base, tables.features.displaced > 0, shapes)
+    D, Y, inputs = _input_rates(sh, x, tau, tables, lo, hi, rod, PROBE_REL[precision], parameters, base)
+    spent += probes + inputs
+    with np.errstate(all="ignore"):
+        try:
+            dx = -np.linalg.solve(J, D)
+        except np.linalg.LinAlgError:  # a singular rod: NaN for it alone
+            dx = np.stack([_solve_or_nan(J[i], D[i]) for i in range(b)])
+        dY = Y + Yx @ dx
+    dtau, dslack = _command_rates(dx, tables, lo, hi, rod)
+    out = {"tip_jacobian": dY[:, :, :K], "tip_compliance": dY[:, :, K:K + 6], "tension_jacobian": dtau,
+           "slack_jacobian": dslack, "unknowns_jacobian": J, "parameter_jacobian": dY[:, :, K + 6:],
+           "integrations": np.full(b, spent)}
+    if shapes:
+        out |= {"base": base, "fields": fields, "field_steps": hx[:, :6]}
+    return out
+
+
+def _unknown_steps(x: np.ndarray, rod: np.ndarray, precision: str) -> np.ndarray:
+    """(b, nu) the finite-difference step of every scaled unknown: PROBE_REL relative to max(1, |x|),
+    and for the axial force at least the step of an axial strain of AXIAL_STRAIN."""
+    hx = PROBE_REL[precision] * np.maximum(1.0, np.abs(x))
     # The axial force: a step of rel would stretch the rod by ~rel (r / 2L)^2, below the round-off
     # of the tip position; it takes central differences at an axial strain of AXIAL_STRAIN.
-    hx[:, AXIAL] = np.maximum(hx[:, AXIAL], AXIAL_STRAIN[precision] * rod[:, layout.KSE + 2] / rod[:, layout.FORCE_SCALE])
-    # Displacement control: the tendons' length rows of J are ~(r / L)^2 of the others, and a
-    # forward difference's error (relative to a column's largest entries) would be amplified by
-    # J^-1 there (measured: 1e-6 relative error of d tip / d q); central differences throughout.
-    central = tables.features.displaced > 0
+    axial = AXIAL_STRAIN[precision] * rod[:, layout.KSE + 2] / rod[:, layout.FORCE_SCALE]
+    hx[:, AXIAL] = np.maximum(hx[:, AXIAL], axial)
+    return hx
+
+
+def _unknown_rates(sh, x: np.ndarray, hx: np.ndarray, base: dict, central: bool,
+                   shapes: bool) -> tuple[np.ndarray, np.ndarray, list, int]:
+    """The shooting Jacobian J = dr / dx (b, nu, nu) and the tip pose's Yx = d pose / dx (b, 6, nu)
+    at x* by probes of every unknown (forward differences from ``base``; central for the axial force
+    and, with ``central``, throughout), the probes' shapes (``fields``, with ``shapes``) and the
+    number of integrations spent."""
+    b, nu = x.shape
     J = np.empty((b, nu, nu))
     Yx = np.empty((b, 6, nu))
     fields = []
+    spent = 0
     for j in range(nu):
         xp = x.copy()
         xp[:, j] += hx[:, j]
@@ -211,7 +240,16 @@ def linearise(sh, tau: np.ndarray, tables: Tables, lo: int, hi: int, precision: 
         Yx[:, :, j] = pose_rate(lower, pr, h)
         if shapes and j < 6:
             fields.append((pr, None if lower is base else lower))
-    spent += nu
+    return J, Yx, fields, spent + nu
+
+
+def _input_rates(sh, x: np.ndarray, tau: np.ndarray, tables: Tables, lo: int, hi: int, rod: np.ndarray, rel: float,
+                 parameters, base: dict) -> tuple[np.ndarray, np.ndarray, int]:
+    """D = dr / d input (b, nu, K + 6 + P) and Y = d pose / d input (b, 6, K + 6 + P) at x*, the inputs
+    being the commands (K), the tip wrench (6) and the parameters (P), and the integrations spent."""
+    b, nu = x.shape
+    K = tau.shape[1]
+    spent = 0
     n_in = K + 6 + len(parameters)
     D = np.zeros((b, nu, n_in))  # dr / d input at x*
     Y = np.zeros((b, 6, n_in))  # d tip / d input at x*
@@ -239,14 +277,17 @@ def linearise(sh, tau: np.ndarray, tables: Tables, lo: int, hi: int, precision: 
         D[:, :, K + 6 + c] = (pu["res"] - pd["res"]) / hp[:, None]
         Y[:, :, K + 6 + c] = pose_rate(pd, pu, hp)
         spent += 2
-    with np.errstate(all="ignore"):
-        try:
-            dx = -np.linalg.solve(J, D)
-        except np.linalg.LinAlgError:  # a singular rod: NaN for it alone
-            dx = np.stack([_solve_or_nan(J[i], D[i]) for i in range(b)])
-        dY = Y + Yx @ dx
-    # d base tension / d command: 1 for tension control, fs dx / dq for a taut displaced tendon;
-    # a slack one's unknown x measures its slack, -x slope L (kernels/rod.py length_residuals)
+    return D, Y, spent
+
+
+def _command_rates(dx: np.ndarray, tables: Tables, lo: int, hi: int, rod: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """d base tension / d command (b, K, K) and d slack length / d command (b, K, K) from dx / d input:
+    1 for tension control, fs dx / dq for a taut displaced tendon; a slack one's unknown x measures
+    its slack, -x slope L (kernels/rod.py length_residuals)."""
+    b = dx.shape[0]
+    tmode = tables.tmode[0]
+    K = len(tmode)
+    fs, L = rod[:, layout.FORCE_SCALE], rod[:, layout.LENGTH]
     dtau, dslack = np.zeros((b, K, K)), np.zeros((b, K, K))
     slope = np.broadcast_to(tables.rows("tendon", lo, hi)[..., layout.T_SLACK_SLOPE], (b, K))
     for k in range(K):
@@ -255,11 +296,7 @@ def linearise(sh, tau: np.ndarray, tables: Tables, lo: int, hi: int, precision: 
             dslack[:, k] = -(slope[:, k] * L)[:, None] * dx[:, 6 + tmode[k], :K]
         else:
             dtau[:, k, k] = 1.0
-    out = {"tip_jacobian": dY[:, :, :K], "tip_compliance": dY[:, :, K:K + 6], "tension_jacobian": dtau,
-           "slack_jacobian": dslack, "unknowns_jacobian": J, "parameter_jacobian": dY[:, :, K + 6:], "integrations": np.full(b, spent)}
-    if shapes:
-        out |= {"base": base, "fields": fields, "field_steps": hx[:, :6]}
-    return out
+    return dtau, dslack
 
 
 def _solve_or_nan(A: np.ndarray, B: np.ndarray) -> np.ndarray:
