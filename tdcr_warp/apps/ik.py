@@ -137,6 +137,42 @@ def constant_curvature_seed(robot: Robot, target: np.ndarray, lo: np.ndarray, hi
     return np.where(disp, x0, box_least_squares(A, need, np.where(disp, x0, lo), np.where(disp, x0, hi), 1e-9))
 
 
+def _target_rotations(target_rotation, B: int) -> np.ndarray:
+    """The orientation targets (B, 3, 3), or an InputError where one is not a rotation matrix."""
+    Rt = per_rod("target_rotation", target_rotation, B, (3, 3))
+    bad = np.abs(np.einsum("bji,bjk->bik", Rt, Rt) - np.eye(3)).max(axis=(1, 2)) > 1e-6
+    if bad.any() or (np.linalg.det(Rt) < 0).any():
+        raise InputError(f"target_rotation[{int(np.flatnonzero(bad | (np.linalg.det(Rt) < 0))[0])}] is not a "
+                         "rotation matrix (orthonormal, det +1)")
+    return Rt
+
+
+def _command_bounds(disp: np.ndarray, L: np.ndarray, tension_max, displacement_range) -> tuple[np.ndarray, np.ndarray]:
+    """The bounds lo, hi (B, K) of every command: [0, tension_max] [N] for a tendon under tension
+    control, ``displacement_range`` [m] (default +- L / 20) for one under displacement control
+    (``disp`` (K,) bool); L (B,) [m]."""
+    B, K = len(L), len(disp)
+    tmax = per_rod("tension_max", tension_max, B, (K,), bound=True)
+    if (tmax[:, ~disp] <= 0).any():
+        raise InputError(f"tension_max must be positive, got {tmax[:, ~disp][tmax[:, ~disp] <= 0][0]!r}")
+    try:
+        dlo, dhi = (-L / 20, L / 20) if displacement_range is None else displacement_range
+    except (TypeError, ValueError):
+        raise InputError(f"displacement_range must be (lo, hi) [m], got {displacement_range!r}") from None
+    dlo, dhi = (per_rod("displacement_range", v, B, ()) for v in (dlo, dhi))
+    if not (dlo < dhi).all():
+        raise InputError(f"displacement_range must be finite (lo, hi) with lo < hi [m], got {displacement_range!r}")
+    return np.where(disp, dlo[:, None], 0.0), np.where(disp, dhi[:, None], tmax)
+
+
+def _bounded_minimum(J: np.ndarray, e: np.ndarray, cmd: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """(B,) bool: the command is a bounded local minimum of |e| (KKT: no descent direction within
+    the bounds lo, hi), so the target is unreachable; J (B, M, K) the error's Jacobian, e (B, M)."""
+    g = np.einsum("bik,bi->bk", J, e)  # -gradient of |e|^2 / 2
+    free = np.where(cmd <= lo, np.maximum(g, 0.0), np.where(cmd >= hi, np.minimum(g, 0.0), g))
+    return np.linalg.norm(free, axis=1) <= KKT_TOL * np.linalg.norm(J, axis=(1, 2)) * np.linalg.norm(e, axis=1)
+
+
 def solve_ik(robot: Robot, target, *, target_rotation=None, tension_max=np.inf, displacement_range=None,
              tol: float = 1e-9, max_iter: int = 40, initial=None, options: StaticOptions | None = None,
              device: str | None = None, **overrides) -> IKResult:
@@ -157,37 +193,19 @@ def solve_ik(robot: Robot, target, *, target_rotation=None, tension_max=np.inf, 
     tgt = real_array(target, "target", copy=False)
     B = max(robot.batch_size, tgt.shape[0] if tgt.ndim == 2 else 1)
     tgt = per_rod("target", tgt, B, (3,))
-    Rt = None
-    if target_rotation is not None:
-        Rt = per_rod("target_rotation", target_rotation, B, (3, 3))
-        bad = np.abs(np.einsum("bji,bjk->bik", Rt, Rt) - np.eye(3)).max(axis=(1, 2)) > 1e-6
-        if bad.any() or (np.linalg.det(Rt) < 0).any():
-            raise InputError(f"target_rotation[{int(np.flatnonzero(bad | (np.linalg.det(Rt) < 0))[0])}] is not a "
-                             "rotation matrix (orthonormal, det +1)")
+    Rt = None if target_rotation is None else _target_rotations(target_rotation, B)
     disp = np.zeros(K, dtype=bool)
     disp[list(robot.displaced)] = True
     L = np.broadcast_to(robot.length, (B,))
-    tmax = per_rod("tension_max", tension_max, B, (K,), bound=True)
-    if (tmax[:, ~disp] <= 0).any():
-        raise InputError(f"tension_max must be positive, got {tmax[:, ~disp][tmax[:, ~disp] <= 0][0]!r}")
-    try:
-        dlo, dhi = (-L / 20, L / 20) if displacement_range is None else displacement_range
-    except (TypeError, ValueError):
-        raise InputError(f"displacement_range must be (lo, hi) [m], got {displacement_range!r}") from None
-    dlo, dhi = (per_rod("displacement_range", v, B, ()) for v in (dlo, dhi))
-    if not (dlo < dhi).all():
-        raise InputError(f"displacement_range must be finite (lo, hi) with lo < hi [m], got {displacement_range!r}")
-    lo = np.where(disp, dlo[:, None], 0.0)
-    hi = np.where(disp, dhi[:, None], tmax)
+    lo, hi = _command_bounds(disp, L, tension_max, displacement_range)
     opts = (options or StaticOptions()).override(**overrides)
     opts = replace(opts, sensitivities=True, tol=opts.tol if opts.tol is not None else 1e-3 * tol)
     cmd = constant_curvature_seed(robot, tgt, lo, hi) if initial is None else np.clip(
         per_rod("initial", initial, B, (K,)), lo, hi)
 
     def solve(c, warm):
-        kw = dict(tensions=np.where(disp, 0.0, c), displacements=np.where(disp, c, 0.0) if disp.any() else None)
-        return solve_static(robot, kw["tensions"], displacements=kw["displacements"], options=opts, device=device,
-                            initial=warm)
+        return solve_static(robot, np.where(disp, 0.0, c), displacements=np.where(disp, c, 0.0) if disp.any() else None,
+                            options=opts, device=device, initial=warm)
 
     def error(sol):
         e = tgt - sol.tip_position
@@ -212,11 +230,7 @@ def solve_ik(robot: Robot, target, *, target_rotation=None, tension_max=np.inf, 
         J = sol.tip_jacobian[:, :3] if Rt is None else np.concatenate(
             [sol.tip_jacobian[:, :3], L[:, None, None] * sol.tip_jacobian[:, 3:]], axis=1)
         J = np.where(done[:, None, None], 0.0, np.nan_to_num(J))
-        # a bounded local minimum of |e| (KKT: no descent direction within the bounds): unreachable
-        g = np.einsum("bik,bi->bk", J, e)  # -gradient of |e|^2 / 2
-        free = np.where(cmd <= lo, np.maximum(g, 0.0), np.where(cmd >= hi, np.minimum(g, 0.0), g))
-        kkt = ~done & (np.linalg.norm(free, axis=1) <= KKT_TOL * np.linalg.norm(J, axis=(1, 2))
-                       * np.linalg.norm(e, axis=1))
+        kkt = ~done & _bounded_minimum(J, e, cmd, lo, hi)
         reason[kkt], done[kkt] = UNREACHABLE, True
         if done.all():
             break
