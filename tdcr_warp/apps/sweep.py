@@ -303,6 +303,44 @@ def _prepare(out: Path, manifest: dict, resume: bool, overwrite: bool) -> None:
     write_manifest(out, manifest | {"state": "running"})
 
 
+def _chunk_size(data: dict, size: int) -> int:
+    """``size`` rods a chunk, or an InputError where solving a chunk of them needs more than 80 % of
+    the memory available."""
+    need, have = chunk_memory_bytes(data, size), available_memory_bytes()
+    if have is not None and need > 0.8 * have:
+        raise InputError(f"a chunk of {size:,} rods needs about {need / 2**30:.1f} GiB while it is solved and "
+                         f"{have / 2**30:.1f} GiB are available: use a smaller --chunk (or [sweep].chunk)")
+    return size
+
+
+def _output_dir(out_dir) -> Path:
+    """The sweep's output folder, made where it does not exist yet."""
+    out = Path(out_dir)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise InputError(f"--out {str(out)!r}: cannot create the output directory: {e.strerror or e}") from None
+    return out
+
+
+def _kept_chunks(store: ChunkStore) -> tuple[set, int]:
+    """The chunks already on disk that pass their checks, and the number of failed rods in them; a
+    chunk that fails its checks is deleted (to be recomputed), and said so on stderr."""
+    done, failed = set(), 0
+    for c in range(store.n_chunks):
+        if not store.exists(c):
+            continue
+        try:
+            part = store.read(c)
+        except ChunkError as e:
+            print(f"tdcr-warp: chunk {c} rejected, recomputing it: {e}", file=sys.stderr)
+            store.part(c).unlink()
+            continue
+        done.add(c)
+        failed += int((~part["ok"].astype(bool)).sum()) if "ok" in part else 0
+    return done, failed
+
+
 def run_sweep(data: dict, job, out_dir, *, chunk: int | None = None, resume: bool = False, overwrite: bool = False,
               progress: bool = True, max_chunks: int | None = None, job_name: str = "sweep",
               backend: str = "local", address: str | None = None, workers: int | None = None,
@@ -331,16 +369,8 @@ def run_sweep(data: dict, job, out_dir, *, chunk: int | None = None, resume: boo
     M = len(samples)
     if M == 0:
         raise InputError("the sweep has no sample rows (check max_total_tension)")
-    size = min(chunk or spec.chunk, M)
-    need, have = chunk_memory_bytes(data, size), available_memory_bytes()
-    if have is not None and need > 0.8 * have:
-        raise InputError(f"a chunk of {size:,} rods needs about {need / 2**30:.1f} GiB while it is solved and "
-                         f"{have / 2**30:.1f} GiB are available: use a smaller --chunk (or [sweep].chunk)")
-    out = Path(out_dir)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as e:
-        raise InputError(f"--out {str(out)!r}: cannot create the output directory: {e.strerror or e}") from None
+    size = _chunk_size(data, min(chunk or spec.chunk, M))
+    out = _output_dir(out_dir)
     fp = fingerprint(data, job_name, size, meta)
     store = ChunkStore(out, fp, M, size)
     manifest = {"format": FORMAT, "fingerprint": fp, "job": job_name, "rods": M, "chunk": size,
@@ -350,18 +380,7 @@ def run_sweep(data: dict, job, out_dir, *, chunk: int | None = None, resume: boo
             print(f"tdcr-warp: {out}: the previous writer (pid {lock.stale.get('pid')}, started "
                   f"{lock.stale.get('started')}) is gone; its lock is taken over", file=sys.stderr)
         _prepare(out, manifest, resume, overwrite)
-        done, failed = set(), 0
-        for c in range(store.n_chunks):
-            if not store.exists(c):
-                continue
-            try:
-                part = store.read(c)
-            except ChunkError as e:
-                print(f"tdcr-warp: chunk {c} rejected, recomputing it: {e}", file=sys.stderr)
-                store.part(c).unlink()
-                continue
-            done.add(c)
-            failed += int((~part["ok"].astype(bool)).sum()) if "ok" in part else 0
+        done, failed = _kept_chunks(store)
         missing = [c for c in range(store.n_chunks) if c not in done]
         todo = missing if max_chunks is None else missing[:max_chunks]
         start_rods = done_rods = sum(store.bounds(c)[1] - store.bounds(c)[0] for c in done)
