@@ -230,6 +230,44 @@ def _apply(data0: dict, spec: list[dict], p: np.ndarray) -> dict:
     return data
 
 
+def _grid_angle(data: dict, spec: list[dict], p: np.ndarray, angles: np.ndarray, meas: Measurements,
+                device) -> tuple[float, float]:
+    """(aligned RMSE [mm], angle [rad]) of the best of GRID_ANGLES whole-robot rotations of the
+    tendons (the parameters ``angles`` of ``p`` set to it) on about GRID_ROWS of the rows: the
+    tendons' angular position as a whole is searched on a grid first, as an angle can be off by
+    a half turn, far outside the basin of Gauss-Newton (opencr-mujoco's v6 description is)."""
+    probe = meas.subset(np.arange(0, len(meas), max(1, len(meas) // GRID_ROWS)))
+    best = None
+    for a in np.arange(GRID_ANGLES) * 2 * math.pi / GRID_ANGLES:
+        q = np.where(angles, a, p)
+        out = predict(scene_from_dict(_apply(data, spec, q)), probe, device=device)
+        e = metrics(out["error_mm"], out["converged"], 1.0)["rmse_aligned_mm"]
+        if out["converged"].mean() > 0.5 and (best is None or e < best[0]):
+            best = (e, a)
+    if best is None:
+        raise InputError("fit: the start converges on fewer than half of the rows at every angle tried")
+    return best
+
+
+def _fit_jacobian(evaluate, p: np.ndarray, steps: np.ndarray, cur: dict) -> np.ndarray:
+    """(3 rows, P) d (predicted - measured point) [m] / d parameter over the rows ``cur`` converged
+    on: forward differences of ``evaluate`` (warm-started from ``cur``) for the physical parameters
+    (a row whose probe did not converge gets 0), exact for the last three (the base offset)."""
+    n_phys = len(p) - 3
+    ok = cur["converged"]
+    J = np.zeros((3 * int(ok.sum()), len(p)))
+    for j in range(n_phys):
+        q = p.copy()
+        q[j] += steps[j]
+        pr = evaluate(q, cur["solution"])
+        both = pr["converged"][ok]
+        col = (pr["error_mm"][ok] - cur["error_mm"][ok]) * 1e-3 / steps[j]
+        J[:, j] = np.where(np.repeat(both, 3), col.ravel(), 0.0)
+    for i in range(3):
+        J[i::3, n_phys + i] = 1.0
+    return J
+
+
 def fit(data: dict, meas: Measurements, *, detail: str = "tendon", max_iter: int = 30, device=None,
         progress=None) -> dict:
     """Calibrate the scene dict ``data`` (with [hardware]) on ``meas`` by Levenberg-Marquardt:
@@ -246,25 +284,13 @@ def fit(data: dict, meas: Measurements, *, detail: str = "tendon", max_iter: int
     lo, hi, steps = (np.array([sp[k] for sp in spec]) for k in ("lo", "hi", "step"))
     angles = np.array([sp["kind"] == "angle" for sp in spec])
     base_data = copy.deepcopy(data)
-    n_phys = len(p) - 3
 
     def evaluate(q, warm=None):
         sc = scene_from_dict(_apply(base_data, spec, q))
         out = predict(sc, meas, device=device, initial=warm)
         return out
 
-    # the tendons' angular position as a whole, by a grid search first (an angle can be off by
-    # a half turn, far outside the basin of Gauss-Newton; opencr-mujoco's v6 description is)
-    probe = meas.subset(np.arange(0, len(meas), max(1, len(meas) // GRID_ROWS)))
-    best = None
-    for a in np.arange(GRID_ANGLES) * 2 * math.pi / GRID_ANGLES:
-        q = np.where(angles, a, p)
-        out = predict(scene_from_dict(_apply(base_data, spec, q)), probe, device=device)
-        e = metrics(out["error_mm"], out["converged"], 1.0)["rmse_aligned_mm"]
-        if out["converged"].mean() > 0.5 and (best is None or e < best[0]):
-            best = (e, a)
-    if best is None:
-        raise InputError("fit: the start converges on fewer than half of the rows at every angle tried")
+    best = _grid_angle(base_data, spec, p, angles, meas, device)
     base_data = _apply(base_data, spec, np.where(angles, best[1], p))
     p = np.where(angles, 0.0, p)  # the rotations are now relative to the grid's
     cur = evaluate(p)
@@ -272,16 +298,7 @@ def fit(data: dict, meas: Measurements, *, detail: str = "tendon", max_iter: int
     for it in range(1, max_iter + 1):
         ok = cur["converged"]
         r = cur["error_mm"][ok].ravel() * 1e-3
-        J = np.zeros((len(r), len(p)))
-        for j in range(n_phys):
-            q = p.copy()
-            q[j] += steps[j]
-            pr = evaluate(q, cur["solution"])
-            both = pr["converged"][ok]
-            col = (pr["error_mm"][ok] - cur["error_mm"][ok]) * 1e-3 / steps[j]
-            J[:, j] = np.where(np.repeat(both, 3), col.ravel(), 0.0)
-        for i in range(3):
-            J[i::3, n_phys + i] = 1.0
+        J = _fit_jacobian(evaluate, p, steps, cur)
         cost = float(r @ r)
         accepted = False
         for _ in range(8):
