@@ -103,6 +103,99 @@ def sliding_command(e: np.ndarray, e_t: np.ndarray, ac: np.ndarray, *, C: np.nda
     return S, v + eps[:, None] * sw + k * S
 
 
+def _gains(B: int, K: int, gain_c, gain_k, epsilon, phi, tension_max, gain_i) -> tuple[np.ndarray, ...]:
+    """The checked per-rod gains C, k (B, 3) [1/s], eps (B,) [m/s^2], phi (B,) [m/s], the tension
+    bound (B, K) [N] and the integral gain Ci (B, 3) [1/s^2] (default C^2 / 4)."""
+    C = per_rod("gain_c", gain_c, B, (3,))
+    k = per_rod("gain_k", gain_k, B, (3,))
+    eps = per_rod("epsilon", epsilon, B, ())
+    ph = per_rod("phi", phi, B, ())
+    tau_max = per_rod("tension_max", tension_max, B, (K,), bound=True)
+    Ci = C**2 / 4 if gain_i is None else per_rod("gain_i", gain_i, B, (3,))
+    if (Ci < 0).any():
+        raise InputError(f"gain_i must be >= 0, got {Ci[Ci < 0][0]!r}")
+    for name, arr in (("gain_c", C), ("gain_k", k), ("tension_max", tau_max)):
+        if (arr <= 0).any():
+            raise InputError(f"{name} must be positive, got {arr[arr <= 0][0]!r}")
+    if (eps < 0).any() or (ph <= 0).any():
+        raise InputError("epsilon must be >= 0 and phi > 0")
+    return C, k, eps, ph, tau_max, Ci
+
+
+def first_mode(robot: Robot, B: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The first bending mode of each rod as a clamped Euler-Bernoulli beam, (B,) each: omega
+    [rad/s], its damping ratio zeta from the bending damping, rho A [kg/m] and the modal mass
+    3 EI / (L^3 omega^2) [kg] (0.243 rho A L)."""
+    sec = robot.section()
+    EI = np.broadcast_to(sec["kbt"][:, 0], (B,))
+    rho_a = np.broadcast_to(robot.density * sec["area"], (B,))
+    L = np.broadcast_to(robot.length, (B,))
+    omega = 1.8751**2 * np.sqrt(EI / (rho_a * L**4))
+    zeta = omega * np.broadcast_to(robot.damping_bending[:, 0], (B,)) / (2 * EI)
+    return omega, zeta, rho_a, 3 * EI / (L**3 * omega**2)
+
+
+def motor_range(robot: Robot, u: np.ndarray, displacement_range) -> tuple[np.ndarray, np.ndarray]:
+    """The motors' range q_lo, q_hi (B, K) [m] (default +- L / 20), checked against the start's
+    displacements u (B, K) [m]."""
+    B, K = u.shape
+    L = np.broadcast_to(robot.length[:, None], (B, K))
+    try:
+        lo, hi = (-L / 20, L / 20) if displacement_range is None else displacement_range
+    except (TypeError, ValueError):
+        raise InputError(f"displacement_range must be (lo, hi) [m], got {displacement_range!r}") from None
+    q_lo, q_hi = (per_rod(f"displacement_range[{i}]", v, B, (K,)) for i, v in enumerate((lo, hi)))
+    if (q_lo >= q_hi).any():
+        raise InputError(f"displacement_range: lo must be below hi, got {displacement_range!r}")
+    if ((u < q_lo) | (u > q_hi)).any():
+        b, k = np.argwhere((u < q_lo) | (u > q_hi))[0]
+        raise InputError(f"the start's displacement[{b}][{k}] = {u[b, k]!r} m is outside displacement_range "
+                         f"[{q_lo[b, k]!r}, {q_hi[b, k]!r}]")
+    return q_lo, q_hi
+
+
+def alpha_model(sim: Simulator, rho_a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The report's input model at the simulator's current state: a_c = (n'(L) + rho A g - R C q|q|) /
+    (rho A) (B, 3) and b_c = -[alpha_1 .. alpha_K] / (rho A) (B, 3, K), alpha_i = hat(p_i')^2 p_i'' /
+    |p_i'|^3 + p_i' / |p_i'| (p_i the tendon path at the tip, from the last two nodes); rho_a (B,) [kg/m]."""
+    st = sim.tip_state()
+    robot, B = sim.robot, sim.B
+    sec = robot.section()
+    kse = np.broadcast_to(sec["kse"], (B, 3))
+    kbt = np.broadcast_to(sec["kbt"], (B, 3))
+    R = st["R"][:, 1]
+    v = np.einsum("bji,bj->bi", R, st["n"][:, 1]) / kse + [0, 0, 1]
+    u = np.einsum("bji,bj->bi", R, st["m"][:, 1]) / kbt
+    u_prev = np.einsum("bji,bj->bi", st["R"][:, 0], st["m"][:, 0]) / kbt
+    v_prev = np.einsum("bji,bj->bi", st["R"][:, 0], st["n"][:, 0]) / kse + [0, 0, 1]
+    h = st["h"][:, None]
+    du, dv = (u - u_prev) / h, (v - v_prev) / h
+    dn = (st["n"][:, 1] - st["n"][:, 0]) / h
+    q = st["q"][:, 1]
+    drag = np.broadcast_to(robot.drag, (B, 3))
+    g = np.broadcast_to(robot.gravity, (B, 3))
+    ra = rho_a[:, None]
+    ac = (dn + ra * g - np.einsum("bij,bj->bi", R, drag * q * np.abs(q))) / ra
+    r_tip = np.broadcast_to(robot.tendon_routing(np.broadcast_to(robot.length, (B,)))[0], (B, robot.n_tendons, 3))
+    cols = []
+    for i in range(robot.n_tendons):
+        r = r_tip[:, i]
+        ps = np.einsum("bij,bj->bi", R, np.cross(u, r) + v)
+        pss = np.einsum("bij,bj->bi", R, np.cross(u, np.cross(u, r)) + np.cross(u, v) + np.cross(du, r) + dv)
+        nps = np.linalg.norm(ps, axis=1)[:, None]
+        alpha = np.einsum("bij,bj->bi", _hat(ps) @ _hat(ps), pss) / nps**3 + ps / nps
+        cols.append(-alpha / ra)
+    return ac, np.stack(cols, axis=-1)
+
+
+def held_integral(ie: np.ndarray, e: np.ndarray, dt: float, bc: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """The error integral ie (B, 3) [m s] advanced by e dt where the allocated command u (B, K)
+    delivers the input v = b_c u (B, 3) to within 10 % (elsewhere held: no wind-up)."""
+    miss = np.linalg.norm(np.einsum("bik,bk->bi", bc, u) - v, axis=1)
+    delivered = miss <= 0.1 * np.linalg.norm(v, axis=1) + 1e-12
+    return np.where(delivered[:, None], ie + dt * e, ie)
+
+
 class TipController:
     """Sliding-mode tip controller for the B rods of a :class:`Simulator`.
 
@@ -138,20 +231,9 @@ class TipController:
         self.sim, self.method, self.input_model, self.command = sim, method, input_model, command
         self.path = target if isinstance(target, TipPath) else TipPath.constant(per_rod("target", target, B, (3,)))
         self.target = self.desired(sim.steps_done * sim.dt)[0]  # where the path starts (B, 3)
-        self.C = per_rod("gain_c", gain_c, B, (3,))
-        self.k = per_rod("gain_k", gain_k, B, (3,))
-        self.eps = per_rod("epsilon", epsilon, B, ())
-        self.phi = per_rod("phi", phi, B, ())
-        self.tau_max = per_rod("tension_max", tension_max, B, (K,), bound=True)
-        self.Ci = self.C**2 / 4 if gain_i is None else per_rod("gain_i", gain_i, B, (3,))
-        if (self.Ci < 0).any():
-            raise InputError(f"gain_i must be >= 0, got {self.Ci[self.Ci < 0][0]!r}")
+        self.C, self.k, self.eps, self.phi, self.tau_max, self.Ci = _gains(B, K, gain_c, gain_k, epsilon, phi,
+                                                                           tension_max, gain_i)
         self.ie = np.zeros((B, 3))  # the integral of the tip error [m s] (method "integral")
-        for name, arr in (("gain_c", self.C), ("gain_k", self.k), ("tension_max", self.tau_max)):
-            if (arr <= 0).any():
-                raise InputError(f"{name} must be positive, got {arr[arr <= 0][0]!r}")
-        if (self.eps < 0).any() or (self.phi <= 0).any():
-            raise InputError("epsilon must be >= 0 and phi > 0")
         self.model_every = model_every
         self._static = None
         self._J = None
@@ -162,14 +244,7 @@ class TipController:
         if robot.n_tendons != K:
             raise InputError(f"model_robot has {robot.n_tendons} tendons, the plant {K}")
         self.u = sim.displacements if command == "displacement" else np.zeros((B, K))  # the last command
-        sec = robot.section()
-        EI = np.broadcast_to(sec["kbt"][:, 0], (B,))
-        rho_a = np.broadcast_to(robot.density * sec["area"], (B,))
-        L = np.broadcast_to(robot.length, (B,))
-        self.omega = 1.8751**2 * np.sqrt(EI / (rho_a * L**4))
-        self.zeta = self.omega * np.broadcast_to(robot.damping_bending[:, 0], (B,)) / (2 * EI)
-        self.rho_a = rho_a
-        self.m_mode = 3 * EI / (L**3 * self.omega**2)  # the first mode's mass, 0.243 rho A L
+        self.omega, self.zeta, self.rho_a, self.m_mode = first_mode(robot, B)
         self.static_opts = StaticOptions(nodes=sim.opts.nodes, integrator=sim.opts.integrator,
                                          model=sim.opts.model, precision=sim.opts.precision, threads=sim.opts.threads,
                                          sensitivities=True)
@@ -185,19 +260,7 @@ class TipController:
                                  "(give every tendon control = 'displacement')")
         if self.input_model != "jacobian":
             raise InputError("command = 'displacement' needs input_model = 'jacobian' (the statics' d tip / d q)")
-        B, K = self.u.shape
-        L = np.broadcast_to(robot.length[:, None], (B, K))
-        try:
-            lo, hi = (-L / 20, L / 20) if displacement_range is None else displacement_range
-        except (TypeError, ValueError):
-            raise InputError(f"displacement_range must be (lo, hi) [m], got {displacement_range!r}") from None
-        self.q_lo, self.q_hi = (per_rod(f"displacement_range[{i}]", v, B, (K,)) for i, v in enumerate((lo, hi)))
-        if (self.q_lo >= self.q_hi).any():
-            raise InputError(f"displacement_range: lo must be below hi, got {displacement_range!r}")
-        if ((self.u < self.q_lo) | (self.u > self.q_hi)).any():
-            b, k = np.argwhere((self.u < self.q_lo) | (self.u > self.q_hi))[0]
-            raise InputError(f"the start's displacement[{b}][{k}] = {self.u[b, k]!r} m is outside displacement_range "
-                             f"[{self.q_lo[b, k]!r}, {self.q_hi[b, k]!r}]")
+        self.q_lo, self.q_hi = motor_range(robot, self.u, displacement_range)
         self._reference = reference_lengths(robot, options=self.static_opts, device=self.sim.dev)
         self._lin = None
         self._warm = None
@@ -252,37 +315,7 @@ class TipController:
             ac = w2 * (self._p0 - np.einsum("bik,bk->bi", self._J, self._u_lin) - X1) \
                 - (2 * self.zeta * self.omega)[:, None] * X2
             return ac, bc
-        return self._alpha_model()
-
-    def _alpha_model(self):
-        st = self.sim.tip_state()
-        robot, B = self.sim.robot, self.sim.B
-        sec = robot.section()
-        kse = np.broadcast_to(sec["kse"], (B, 3))
-        kbt = np.broadcast_to(sec["kbt"], (B, 3))
-        R = st["R"][:, 1]
-        v = np.einsum("bji,bj->bi", R, st["n"][:, 1]) / kse + [0, 0, 1]
-        u = np.einsum("bji,bj->bi", R, st["m"][:, 1]) / kbt
-        u_prev = np.einsum("bji,bj->bi", st["R"][:, 0], st["m"][:, 0]) / kbt
-        v_prev = np.einsum("bji,bj->bi", st["R"][:, 0], st["n"][:, 0]) / kse + [0, 0, 1]
-        h = st["h"][:, None]
-        du, dv = (u - u_prev) / h, (v - v_prev) / h
-        dn = (st["n"][:, 1] - st["n"][:, 0]) / h
-        q = st["q"][:, 1]
-        drag = np.broadcast_to(robot.drag, (B, 3))
-        g = np.broadcast_to(robot.gravity, (B, 3))
-        ra = self.rho_a[:, None]
-        ac = (dn + ra * g - np.einsum("bij,bj->bi", R, drag * q * np.abs(q))) / ra
-        r_tip = np.broadcast_to(robot.tendon_routing(np.broadcast_to(robot.length, (B,)))[0], (B, robot.n_tendons, 3))
-        cols = []
-        for i in range(robot.n_tendons):
-            r = r_tip[:, i]
-            ps = np.einsum("bij,bj->bi", R, np.cross(u, r) + v)
-            pss = np.einsum("bij,bj->bi", R, np.cross(u, np.cross(u, r)) + np.cross(u, v) + np.cross(du, r) + dv)
-            nps = np.linalg.norm(ps, axis=1)[:, None]
-            alpha = np.einsum("bij,bj->bi", _hat(ps) @ _hat(ps), pss) / nps**3 + ps / nps
-            cols.append(-alpha / ra)
-        return ac, np.stack(cols, axis=-1)
+        return alpha_model(self.sim, self.rho_a)
 
     def __call__(self) -> np.ndarray:
         """The command (B, K) for the next step, tensions [N] or displacements [m] (``command``),
@@ -300,10 +333,8 @@ class TipController:
                                                         self._warm)
         else:
             self.u = allocate(bc, v, self.tau_max, self.u)
-        if self.method == "integral":  # integrate where the tendons deliver the command (no wind-up)
-            miss = np.linalg.norm(np.einsum("bik,bk->bi", bc, self.u) - v, axis=1)
-            delivered = miss <= 0.1 * np.linalg.norm(v, axis=1) + 1e-12
-            self.ie = np.where(delivered[:, None], self.ie + self.sim.dt * (e * LATERAL if disp else e), self.ie)
+        if self.method == "integral":
+            self.ie = held_integral(self.ie, e * LATERAL if disp else e, self.sim.dt, bc, self.u, v)
         self.steps += 1
         return self.u
 
