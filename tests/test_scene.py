@@ -1,6 +1,9 @@
 """TOML scenes: the examples, per-rod values, and errors that name the table, key and value."""
 
 import copy
+import dataclasses
+import hashlib
+import json
 import tomllib
 from pathlib import Path
 
@@ -204,3 +207,79 @@ def test_nesting_beyond_the_recursion_limit_is_an_input_error():
     """A scene dict built in Python, nested deeper than any recursive check could follow."""
     with pytest.raises(tw.InputError, match=r"robot\.length\[0\]: nested more than 16 levels deep"):
         scene_from_dict(scene(robot__length=nested(5000)))
+
+
+# -- the parser's results, pinned: every example and these scenes parse to the objects that the
+# -- one-function parser of commit 2a7d5ca made (tests/scene_parse_reference.json holds their digests)
+
+PARSED_REFERENCE = Path(__file__).with_name("scene_parse_reference.json")
+EXTRA_SCENES = {
+    "base": {},
+    "per_rod": dict(robot__length=[0.5, 0.4], robot__disk_radius=0.02, loads__tip_force=[[0.0, 0.01, 0.0]] * 2,
+                    loads__tip_moment=[0.0, 0.0, 0.001], tendons__0__pretension=[0.5, 1.0],
+                    tendons__1__compliance=1e-5),
+    "helix_points": dict(tendons=[{"routing": "helix", "radius": 0.005, "turns": 1.0},
+                                  {"routing": "points", "points": [[0.0, 0.01, 0.0], [0.25, 0.0, 0.01],
+                                                                   [0.5, -0.01, 0.0]]}]),
+    "displacement": dict(tendons__1__control="displacement", actuation__displacements=[0.0, 0.002],
+                         actuation__slip=[[1, -1]], tendons__1__friction=0.1),
+    "preset": dict(solver={"preset": "fast", "tol": 1e-9, "threads": 1, "driver": "fused"}),
+    "dynamics": dict(dynamics={"dt": 0.01, "steps": 4, "alpha": -0.2, "shapes_every": 2, "drag": [0.1, 0.1, 0.1],
+                               "damping_shear": [0.0, 0.0, 1e-3], "damping_bending": [1e-6, 1e-6, 0.0]},
+                     actuation__steps=[{"start": 2, "tensions": [1.0, 1.0]}, {"start": 4, "tensions": [[0.0, 3.0]]}],
+                     control={"target": [0.05, 0.0, 0.45], "gain_c": [10.0, 10.0, 10.0], "gain_k": 5,
+                              "epsilon": 0.01, "phi": 0.002, "tension_max": 6.0, "model_every": 3,
+                              "method": "integral", "input_model": "alpha", "gain_i": [1.0, 1.0, 1.0]}),
+    "ik": dict(ik={"targets": [[0.05, 0.0, 0.45]], "target_rotations": [[[1.0, 0, 0], [0, 1.0, 0], [0, 0, 1.0]]],
+                   "tension_max": 5.0, "displacement_range": [-0.01, 0.01], "tol": 1e-8, "max_iter": 30}),
+    "display_search": dict(display={"disks": 7, "disk_radius": 0.015},
+                           dynamics={"dt": 0.005, "steps": 3},
+                           control={"target_tensions": [[1.0, 1.0]], "gain_c": 20.0, "gain_k": [5, 5, 5]},
+                           search={"ranges": {"control.gain_c": [1.0, 100.0], "control.gain_k[1]": [1, 50]},
+                                   "budget": 8, "population": 4, "seed": 2, "sigma": 0.5},
+                           hardware={"servo_columns": ["a", "b"], "marker_offset": [0.0, 0.0, 0.01]}),
+    "path": dict(dynamics={"dt": 0.005, "steps": 3}, control={"path": {"shape": "line", "start": [0.0, 0.0, 0.45],
+                                                                       "end": [0.01, 0.0, 0.45], "speed": 0.01}}),
+}
+
+
+def _canonical(x):
+    """x as nested tuples of text: arrays by dtype, shape and bytes; dataclasses field by field
+    (a Robot with its section too); dicts in order."""
+    if isinstance(x, np.ndarray):
+        return ("array", str(x.dtype), x.shape, x.tobytes().hex())
+    if dataclasses.is_dataclass(x):
+        out = [(f.name, _canonical(getattr(x, f.name))) for f in dataclasses.fields(x)]
+        if isinstance(x, tw.Robot):
+            out.append(("section", _canonical(x.section())))
+        return (type(x).__name__, tuple(out))
+    if isinstance(x, dict):
+        return ("dict", tuple((repr(k), _canonical(v)) for k, v in x.items()))
+    if isinstance(x, (list, tuple)):
+        return (type(x).__name__, tuple(_canonical(v) for v in x))
+    if isinstance(x, float):
+        return ("float", x.hex())
+    return (type(x).__name__, repr(x))
+
+
+def parsed_digests(sc: Scene) -> dict[str, str]:
+    """Per field of a Scene, the sha256 of its canonical form."""
+    return {f.name: hashlib.sha256(repr(_canonical(getattr(sc, f.name))).encode()).hexdigest()
+            for f in dataclasses.fields(sc)}
+
+
+def parsed_scenes() -> dict[str, Scene]:
+    """Every example and hardware example (loaded from its file) and the EXTRA_SCENES."""
+    out = {str(p.relative_to(EXAMPLES)): load_scene(p) for p in sorted(EXAMPLES.glob("*.toml"))
+           + sorted(EXAMPLES.glob("hardware/*.toml"))}
+    out.update({name: scene_from_dict(scene(**edits)) for name, edits in EXTRA_SCENES.items()})
+    return out
+
+
+def test_every_scene_parses_as_the_reference_parser_did():
+    want = json.loads(PARSED_REFERENCE.read_text())
+    got = {name: parsed_digests(sc) for name, sc in parsed_scenes().items()}
+    assert got.keys() == want.keys()
+    for name in want:
+        differ = [f for f in want[name] if got[name][f] != want[name][f]]
+        assert not differ, f"{name}: {differ} differ from the reference parser's"
