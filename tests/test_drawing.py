@@ -9,7 +9,7 @@ from scenes import two_tendon_scene
 
 import tdcr_warp as tw
 from tdcr_warp.cli import main
-from tdcr_warp.io.drawing import display_options, robot_geometry
+from tdcr_warp.io.drawing import TENSION_SCALE, display_options, robot_geometry
 from tdcr_warp.io.plotting import animate_robot, plot_robot
 from tdcr_warp.io.scene import scene_from_dict
 from tdcr_warp.model.robot import InputError
@@ -46,22 +46,47 @@ def test_robot_figure_draws_every_part_on_equal_axes(solved):
 
     def count(ax, gid):
         return sum(1 for ln in ax.lines if ln.get_gid() == gid)
-    for ax in (ax3, side, top):
+    for ax in (ax3, side):
         assert count(ax, "backbone") == 2 and count(ax, "disk") == 2 * 8
         assert count(ax, "tendon") == 2 * 2 and count(ax, "frame") == 2 * 2 * 3
-    widths = [np.diff(lim)[0] for lim in (ax3.get_xlim(), ax3.get_ylim(), ax3.get_zlim())]
-    assert np.allclose(widths, widths[0])
-    for ax in (side, top):
-        assert ax.get_aspect() == 1.0 and np.isclose(np.diff(ax.get_xlim())[0], np.diff(ax.get_ylim())[0])
-    assert [t.get_text() for t in side.get_legend().get_texts()] == ["rod 0", "rod 1"]
+    # seen from above: the backbones, each rod's tip disk (not 8 stacked rims), base ring and tendon ends
+    assert [count(top, gid) for gid in ("backbone", "disk", "base", "tendon", "tendon end", "frame")] == [2, 2, 2, 4,
+                                                                                                          4, 0]
+    tip_disk = next(ln for ln in top.lines if ln.get_gid() == "disk")
+    assert np.allclose(np.c_[tip_disk.get_xdata(), tip_disk.get_ydata()].mean(axis=0),
+                       g.disk_centres[0, -1, :2] * 1e3, atol=0.5)  # mm
+    # the 3D box: one scale on x, y and z (box sides in proportion to the limits), holding every
+    # point, fitted to the robot (a tall box, not a cube around a thin rod) and no side under a third
+    # of the longest
+    spans = np.array([np.diff(lim)[0] for lim in (ax3.get_xlim(), ax3.get_ylim(), ax3.get_zlim())])
+    box = np.asarray(ax3.get_box_aspect())
+    assert np.allclose(box / box.max(), spans / spans.max())
+    pts = np.concatenate([np.stack(ln.get_data_3d(), axis=1) for ln in ax3.lines])  # mm
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    assert (lo >= [a[0] for a in (ax3.get_xlim(), ax3.get_ylim(), ax3.get_zlim())]).all()
+    assert (hi <= [a[1] for a in (ax3.get_xlim(), ax3.get_ylim(), ax3.get_zlim())]).all()
+    tight = hi - lo + 0.1 * (hi - lo).max()  # the data's extent with the margins
+    aspect = (spans / spans.max()) / (tight / tight.max())
+    assert (aspect > 0.99).all() and (aspect < 3).all(), aspect
+    assert (spans / spans.max() > 0.33).all() and np.argmax(spans) == 2 and (hi - lo)[2] > 0.85 * spans[2]
+    for ax in (side, top):  # equal axes, the data filling the longer one
+        assert ax.get_aspect() == 1.0
+        xy = np.concatenate([np.c_[ln.get_xdata(), ln.get_ydata()] for ln in ax.lines])
+        extent, lims = np.ptp(xy, axis=0), np.array([np.diff(ax.get_xlim())[0], np.diff(ax.get_ylim())[0]])
+        assert (extent <= lims).all() and (extent / lims).max() > 0.85
+    assert side.get_xlabel() == "x [mm]" and side.get_ylabel() == "z [mm]" and top.get_ylabel() == "y [mm]"
+    assert [t.get_text() for t in fig.legends[0].get_texts()] == ["rod 0", "rod 1", "spacer disks",
+                                                                  "tendons (colour: tension)",
+                                                                  "base and tip frames (x, y, z)"]
     tendons = [ln for ln in ax3.lines if ln.get_gid() == "tendon"]
     # one colour scale from 0 to the largest tension (2 N), in drawing order: rod 0's tendons, rod 1's
-    import matplotlib.pyplot as plt
-    want = [plt.get_cmap("plasma")(t / 2.0)[:3] for t in sol.tendon_tension_base.ravel()]
+    from matplotlib.colors import LinearSegmentedColormap
+    cmap = LinearSegmentedColormap.from_list("tension", TENSION_SCALE)
+    want = [cmap(t / 2.0)[:3] for t in sol.tendon_tension_base.ravel()]
     assert np.allclose([matplotlib_rgb(ln.get_color()) for ln in tendons], want)
     assert len({matplotlib_rgb(ln.get_color()) for ln in tendons}) == 4
-    assert "tendon tensions [N] 0: 2.00, 1: 0.50" in ax3.get_title()
-    assert fig.axes[-1].get_ylabel() == "tendon tension [N]"
+    assert "tendon tensions [N] 0: 2.00, 1: 0.50" in fig.get_suptitle()
+    assert fig.axes[-1].get_xlabel() == "tendon tension [N]"
 
 
 def matplotlib_rgb(c):
@@ -76,6 +101,7 @@ def test_animation_has_one_frame_per_stored_shape(solved, tmp_path):
     with Image.open(tmp_path / "a.gif") as im:
         assert im.n_frames == 3
     assert animate_robot([g] * 300, np.arange(300) * 1e-3, tmp_path / "b.gif", max_frames=4) == 4
+    assert (tmp_path / "b.gif").stat().st_size < 2e6
 
 
 @pytest.mark.parametrize("table,message", [({"disks": -1}, "disks"), ({"disks": 2.5}, "disks"),

@@ -15,11 +15,10 @@ from scenes import two_tendon_scene
 
 import tdcr_warp as tw
 from tdcr_warp.cli import main
+from tdcr_warp.io.drawing import ROD_COLOURS, TENSION_SCALE
 from tdcr_warp.io.viewer import (
     MAX_FRAMES,
     RIM_POINTS,
-    ROD_COLOURS,
-    TENSION_SCALE,
     frame_indices,
     robot_figure,
     screenshot,

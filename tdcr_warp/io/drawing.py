@@ -19,10 +19,26 @@ import numpy as np
 
 from tdcr_warp.model.robot import InputError, Robot
 
-__all__ = ["DISPLAY_KEYS", "RobotGeometry", "display_options", "robot_geometry"]
+__all__ = ["AXIS_COLOURS", "DISK_COLOUR", "DISPLAY_KEYS", "ROD_COLOURS", "TENSION_SCALE", "RobotGeometry",
+           "display_options", "rod_colours", "robot_geometry"]
 
 DISPLAY_KEYS = {"disks", "disk_radius"}
 DEFAULT_DISKS = 20
+
+# One palette for the figures, the animations and the viewer. Rods: blues, greens, purples (no reds
+# or oranges: those are the tensions); one rod: near black.
+ROD_COLOURS = ["#1f77b4", "#2ca02c", "#9467bd", "#17becf", "#393b79", "#637939", "#bcbd22", "#5254a3",
+               "#8ca252", "#6b6ecf"]
+SINGLE_ROD_COLOUR = "#202020"
+DISK_COLOUR = "#8c8c8c"
+# tension: light orange (slack, still visible on white) to dark red (the largest tension drawn)
+TENSION_SCALE = [[0.0, "#fdae6b"], [0.4, "#f16913"], [0.75, "#d7301f"], [1.0, "#7f0000"]]
+AXIS_COLOURS = ("#e41a1c", "#33a02c", "#1f4fff")  # the base and tip frames' x, y, z
+
+
+def rod_colours(rods: int) -> list[str]:
+    """A colour per rod: near black for one rod, else ROD_COLOURS in turn."""
+    return [SINGLE_ROD_COLOUR] if rods == 1 else [ROD_COLOURS[b % len(ROD_COLOURS)] for b in range(rods)]
 
 
 def display_options(table: dict | None) -> dict:
@@ -68,6 +84,12 @@ class RobotGeometry:
     @property
     def rods(self) -> int:
         return self.backbone.shape[0]
+
+    @property
+    def axis_length(self) -> float:
+        """The drawn length [m] of the base and tip frames' axes: 6 % of the longest rod, at least
+        2.5 disk radii (clear of the disks)."""
+        return max(2.5 * self.disk_radius, 0.06 * float(np.max(self.s[:, -1])))
 
     def disk_rims(self, points: int = 24) -> np.ndarray:
         """The disks' rims (B, D, points + 1, 3), closed."""

@@ -11,6 +11,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from tdcr_warp.io.drawing import AXIS_COLOURS, DISK_COLOUR, TENSION_SCALE, rod_colours  # noqa: E402
+
 MAX_RODS_DRAWN = 200
 
 
@@ -28,101 +30,167 @@ def _save(fig, path: Path) -> None:
 
 
 MAX_ROBOTS_DRAWN = 10  # rods drawn with disks and tendons; further rods: backbone only
-FRAME_COLOURS = ("tab:red", "tab:green", "tab:blue")  # x, y, z axes of the base and tip frames
+MM = 1e3  # the robot figures are drawn in millimetres
+BOX_FLOOR = 1 / 3  # no side of the 3D box or the side view shorter than this fraction of its longest side
+MARGIN = 0.05  # space around the drawing, a fraction of its longest extent on every side
+RIM_POINTS = 48  # segments of a disk's rim
+RING = np.linspace(0.0, 2 * np.pi, RIM_POINTS + 1)  # [rad] around a rim
+ROBOT_VIEWS = {"3d": (0, 1, 2), "side": (0, 2), "top": (0, 1)}  # world components drawn by each view
 
 
-def _equal_limits(points: np.ndarray) -> tuple[np.ndarray, float]:
-    """Centre (3,) and half-width of a cube holding every point (..., 3)."""
-    pts = points.reshape(-1, 3)
-    lo, hi = pts.min(axis=0), pts.max(axis=0)
-    return (lo + hi) / 2, max(float((hi - lo).max()) / 2 * 1.08, 1e-6)
+def _view_box(points: np.ndarray, floor: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """Lower and upper limits (C,) of a box holding ``points`` (P, C) on one scale on every axis:
+    each side the points' extent plus MARGIN x the longest extent either way, and at least
+    ``floor`` x the longest side (a straight rod is not drawn as a sliver)."""
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    longest = max(float((hi - lo).max()), 1e-9)
+    side = np.maximum(hi - lo + 2 * MARGIN * longest, floor * (1 + 2 * MARGIN) * longest)
+    centre = (lo + hi) / 2
+    return centre - side / 2, centre + side / 2
 
 
-def _draw_robot(axes: dict, geom, converged, tension_norm, cmap) -> None:
-    """Draw every rod of ``geom`` (drawing.RobotGeometry) into the 3D axes ``axes['3d']`` and
-    the projections ``axes[(i, j)]`` (world components i, j). Artists carry a gid: backbone,
-    disk, tendon, frame."""
-    B = geom.rods
-    L = float(geom.s[:, -1].max())
-    views = [("3d", (0, 1, 2))] + [(k, k) for k in axes if k != "3d"]
-
-    def line(pts, **kw):
-        for key, comp in views:
-            ax = axes[key]
-            ax.plot(*(pts[..., c] for c in comp), **kw)
-    rims = geom.disk_rims()
-    for b in range(B):
-        ok = converged is None or bool(converged[b])
-        colour = f"C{b % 10}" if ok else "red"
-        full = b < MAX_ROBOTS_DRAWN
-        line(geom.backbone[b], color=colour, lw=3.0 if full else 1.0, ls="-" if ok else "--", gid="backbone",
-             label=(f"rod {b}" if ok else f"rod {b} (not converged)") if b < 20 else None)
-        if not full:
-            continue
-        for d in range(rims.shape[1]):
-            line(rims[b, d], color="0.55", lw=0.7, gid="disk")
-        for k, pts in enumerate(geom.tendon_points):
-            tau = float(geom.tension[b, k])
-            line(pts[b], color=cmap(tension_norm(tau)), lw=1.6, gid="tendon")
-        for origin, R in ((np.zeros(3), np.eye(3)), (geom.tip_position[b], geom.tip_rotation[b])):
-            for c in range(3):
-                line(np.stack([origin, origin + 0.05 * L * R[:, c]]), color=FRAME_COLOURS[c], lw=1.5, gid="frame")
+def _base_rings(geom) -> np.ndarray:
+    """Rings (B, RIM_POINTS + 1, 3) [m] of the disks' radius in the x-y plane around each rod's base."""
+    ring = np.stack([np.cos(RING), np.sin(RING), np.zeros_like(RING)], axis=-1) * geom.disk_radius
+    return geom.backbone[:, :1] + ring
 
 
-def _robot_axes(fig, points: np.ndarray) -> dict:
-    """A 3D view (a cube around every point: the true shape), a side view (x-z) and a top view
-    (x-y), each 2D view with equal axes around its own extent of ``points`` (P, 3)."""
-    axes = {"3d": fig.add_subplot(1, 3, 1, projection="3d"), (0, 2): fig.add_subplot(1, 3, 2),
-            (0, 1): fig.add_subplot(1, 3, 3)}
+def _robot_extent(geom) -> dict:
+    """Per view of ROBOT_VIEWS: the points (P, C) [m] it must hold: backbones, tendons, the base,
+    every disk and the frames' axes (the top view: the tip disk and the base ring, no frames) of the
+    rods drawn."""
+    n = MAX_ROBOTS_DRAWN
+    rims = geom.disk_rims(RIM_POINTS)[:n]
+    body = [geom.backbone.reshape(-1, 3), np.zeros((1, 3))] + [t[:n].reshape(-1, 3) for t in geom.tendon_points]
+    axes_ends = geom.axis_length * np.concatenate([np.eye(3), np.swapaxes(geom.tip_rotation[:n], 1, 2).reshape(-1, 3)])
+    axes_ends[3:] += np.repeat(geom.tip_position[:n], 3, axis=0)
+    every = np.concatenate(body + [rims.reshape(-1, 3), axes_ends])
+    top = np.concatenate(body + [rims[:, -1:].reshape(-1, 3), _base_rings(geom)[:n].reshape(-1, 3)])
+    return {key: (top if key == "top" else every)[:, list(comp)] for key, comp in ROBOT_VIEWS.items()}
+
+
+def _robot_axes(fig, extent: dict) -> dict:
+    """A 3D view, a side view (x-z) and a top view (x-y) in mm, each on one scale on all its axes
+    (the robot's true shape) around its points of ``extent`` (:func:`_robot_extent`); the 3D box
+    and the side view no narrower than BOX_FLOOR x their height."""
+    from matplotlib.ticker import MaxNLocator
+
+    grid = fig.add_gridspec(1, 3, width_ratios=(1.0, 0.7, 1.3))
+    axes = {"3d": fig.add_subplot(grid[0], projection="3d"), "side": fig.add_subplot(grid[1]),
+            "top": fig.add_subplot(grid[2])}
     ax3 = axes["3d"]
-    centre, half = _equal_limits(points)
+    lo, hi = (x * MM for x in _view_box(extent["3d"], BOX_FLOOR))
     for c, set_lim in enumerate((ax3.set_xlim, ax3.set_ylim, ax3.set_zlim)):
-        set_lim(centre[c] - half, centre[c] + half)
-    ax3.set_box_aspect((1, 1, 1))
-    ax3.set_xlabel("x [m]")
-    ax3.set_ylabel("y [m]")
-    ax3.set_zlabel("z [m]")
-    for (i, j), title in (((0, 2), "side (x-z)"), ((0, 1), "top (x-y)")):
-        ax = axes[(i, j)]
-        lo, hi = points[:, [i, j]].min(axis=0), points[:, [i, j]].max(axis=0)
-        mid, h = (lo + hi) / 2, max(float((hi - lo).max()) / 2 * 1.1, 1e-6)
-        ax.set_xlim(mid[0] - h, mid[0] + h)
-        ax.set_ylim(mid[1] - h, mid[1] + h)
-        ax.set_aspect("equal")
-        ax.set_xlabel(f"{'xyz'[i]} [m]")
-        ax.set_ylabel(f"{'xyz'[j]} [m]")
+        set_lim(lo[c], hi[c])
+    ax3.set_box_aspect(hi - lo, zoom=0.95)
+    ax3.view_init(elev=18, azim=-60)
+    for c, axis in enumerate((ax3.xaxis, ax3.yaxis, ax3.zaxis)):
+        axis.set_major_locator(MaxNLocator(max(3, round(6 * (hi[c] - lo[c]) / (hi - lo).max()))))
+    ax3.set_xlabel("x [mm]")
+    ax3.set_ylabel("y [mm]")
+    ax3.set_zlabel("z [mm]", labelpad=18)
+    ax3.set_title("3D view")
+    for key, title in (("side", "side (x-z)"), ("top", "top (x-y): base (dashed) to tip disk")):
+        ax = axes[key]
+        lo, hi = (x * MM for x in _view_box(extent[key], BOX_FLOOR if key == "side" else 0.0))
+        ax.set_xlim(lo[0], hi[0])
+        ax.set_ylim(lo[1], hi[1])
+        ax.set_aspect("equal", adjustable="box")
+        ax.set_xlabel(f"{'xyz'[ROBOT_VIEWS[key][0]]} [mm]")
+        ax.set_ylabel(f"{'xyz'[ROBOT_VIEWS[key][1]]} [mm]")
         ax.set_title(title)
         ax.grid(True, alpha=0.3)
     return axes
 
 
+def _draw_robot(axes: dict, geom, converged, tension_norm, cmap) -> None:
+    """Draw every rod of ``geom`` (drawing.RobotGeometry) into the views ``axes`` (3d, side, top;
+    :func:`_robot_axes`): backbone, every disk (the top view: the tip disk alone, not a stack of
+    rims, and a dashed ring of the disks' radius around the base), every tendon coloured by its
+    tension, its ends (top view), the base and tip frames (3d and side). Artists carry a gid:
+    backbone, disk, base, tendon, tendon end, frame."""
+    rims, rings = geom.disk_rims(RIM_POINTS), _base_rings(geom)
+    colours = rod_colours(geom.rods)
+    length = geom.axis_length
+
+    def line(keys, pts, *fmt, **kw):
+        for key in keys:
+            axes[key].plot(*(pts[..., c] * MM for c in ROBOT_VIEWS[key]), *fmt, **kw)
+    for b in range(geom.rods):
+        ok = converged is None or bool(converged[b])
+        full = b < MAX_ROBOTS_DRAWN
+        line(ROBOT_VIEWS, geom.backbone[b], color=colours[b], lw=2.5 if full else 1.0, ls="-" if ok else "--",
+             gid="backbone", zorder=3)
+        if not full:
+            continue
+        for d in range(rims.shape[1]):
+            line(("3d", "side") if d < rims.shape[1] - 1 else ROBOT_VIEWS, rims[b, d], color=DISK_COLOUR, lw=0.8,
+                 gid="disk", zorder=1)
+        line(("top",), rings[b], color=DISK_COLOUR, lw=0.8, ls="--", gid="base", zorder=1)
+        for k, pts in enumerate(geom.tendon_points):
+            colour = cmap(tension_norm(float(geom.tension[b, k])))
+            line(ROBOT_VIEWS, pts[b], color=colour, lw=1.5, gid="tendon", zorder=2)
+            line(("top",), pts[b, -1], "o", color=colour, mec="k", mew=0.5, ms=5, gid="tendon end", zorder=4)
+        for origin, R in ((np.zeros(3), np.eye(3)), (geom.tip_position[b], geom.tip_rotation[b])):
+            for c in range(3):
+                line(("3d", "side"), np.stack([origin, origin + length * R[:, c]]), color=AXIS_COLOURS[c], lw=1.5,
+                     gid="frame", zorder=3)
+
+
 def _tension_scale(tensions: np.ndarray):
-    from matplotlib.colors import Normalize
+    """The tension colours: Normalize from 0 to the largest of ``tensions`` [N] and drawing's
+    TENSION_SCALE as a colour map."""
+    from matplotlib.colors import LinearSegmentedColormap, Normalize
     top = float(np.max(tensions)) if tensions.size else 0.0
-    return Normalize(0.0, top if top > 0 else 1.0), plt.get_cmap("plasma")
+    return Normalize(0.0, top if top > 0 else 1.0), LinearSegmentedColormap.from_list("tension", TENSION_SCALE)
+
+
+def _robot_legend(fig, geom, converged, cmap) -> None:
+    """The legend below the views: each rod's backbone (one rod: "backbone"), disks, tendons and
+    the frames' axes."""
+    from matplotlib.legend_handler import HandlerTuple
+    from matplotlib.lines import Line2D
+
+    colours = rod_colours(geom.rods)
+    shown = min(geom.rods, MAX_ROBOTS_DRAWN)
+    handles = [Line2D([], [], color=colours[b], lw=2.5, ls="-" if converged is None or converged[b] else "--")
+               for b in range(shown)]
+    labels = ["backbone"] if geom.rods == 1 else [
+        f"rod {b}" + ("" if converged is None or converged[b] else " (not converged)") for b in range(shown)]
+    handles += [Line2D([], [], color=DISK_COLOUR, lw=0.8), Line2D([], [], color=cmap(0.6), lw=1.5),
+                tuple(Line2D([], [], color=c, lw=1.5) for c in AXIS_COLOURS)]
+    labels += ["spacer disks", "tendons (colour: tension)", "base and tip frames (x, y, z)"]
+    fig.legend(handles, labels, loc="outside lower center", ncols=min(len(labels), 7), fontsize=9, frameon=False,
+               handler_map={tuple: HandlerTuple(ndivide=None)})
+
+
+def _robot_figure(geom, extent: dict, tensions: np.ndarray, converged, size: tuple):
+    """The figure, its views, legend and tension colour bar (scale: 0 to the largest of ``tensions``)."""
+    fig = plt.figure(figsize=size, layout="constrained")
+    axes = _robot_axes(fig, extent)
+    norm, cmap = _tension_scale(tensions)
+    _robot_legend(fig, geom, converged, cmap)
+    if geom.tendon_points:
+        fig.colorbar(plt.cm.ScalarMappable(norm=norm, cmap=cmap), ax=axes["top"], location="bottom", shrink=0.8,
+                     aspect=30, label="tendon tension [N]")
+    return fig, axes, norm, cmap
 
 
 def plot_robot(geom, path: Path | None = None, converged=None, title: str | None = None):
-    """The robot as roboticists draw it, from a drawing.RobotGeometry: backbone (a thick line,
-    one colour per rod, legend), disks, every tendon's path through the disks coloured by its
-    tension (colour bar; rod 0's tensions in the title), base and tip frames
-    (x red, y green, z blue), in a 3D view, a side view and a top view, all with equal axes.
-    Rods beyond MAX_ROBOTS_DRAWN are drawn as backbones only. Returns the Figure (saved to
-    ``path`` and closed if given)."""
-    pts = np.concatenate([p.reshape(-1, 3) for p in [geom.backbone, *geom.tendon_points]] + [np.zeros((1, 3))])
-    fig = plt.figure(figsize=(15, 5.2), layout="constrained")
-    axes = _robot_axes(fig, pts)
-    norm, cmap = _tension_scale(geom.tension[:MAX_ROBOTS_DRAWN])
+    """The robot as roboticists draw it, from a drawing.RobotGeometry, in mm: a 3D view, a side
+    view (x-z) and a top view (x-y), each on one scale on all its axes (the true shape): backbone
+    (thick; several rods: a colour each), spacer disks (the top view: the tip disk), every
+    tendon's path through the disks coloured by its tension (colour bar), base and tip frames
+    (x red, y green, z blue), a legend below; the title: rod 0's tip and tensions. Rods beyond
+    MAX_ROBOTS_DRAWN are drawn as backbones only. Returns the Figure (saved to ``path`` and
+    closed if given)."""
+    fig, axes, norm, cmap = _robot_figure(geom, _robot_extent(geom), geom.tension[:MAX_ROBOTS_DRAWN], converged,
+                                          (13, 6.4))
     _draw_robot(axes, geom, converged, norm, cmap)
-    dx = np.linalg.norm(geom.tip_position[0, :2]) * 1e3
+    tip = geom.tip_position[0] * MM
     tensions = ", ".join(f"{k}: {t:.2f}" for k, t in enumerate(geom.tension[0]))
-    axes["3d"].set_title(title or f"rod 0: tip {np.round(geom.tip_position[0] * 1e3, 1).tolist()} mm "
-                                  f"({dx:.1f} mm off the axis)\ntendon tensions [N] {tensions}", fontsize=9)
-    if geom.rods > 1:
-        axes[(0, 2)].legend(fontsize=7, loc="best")
-    if geom.tendon_points:
-        fig.colorbar(plt.cm.ScalarMappable(norm=norm, cmap=cmap), ax=axes[(0, 1)], shrink=0.8,
-                     label="tendon tension [N]")
+    fig.suptitle(title or f"rod 0: tip ({tip[0]:.1f}, {tip[1]:.1f}, {tip[2]:.1f}) mm, "
+                          f"{np.linalg.norm(tip[:2]):.1f} mm off the axis; tendon tensions [N] {tensions}")
     if path is not None:
         _save(fig, path)
     return fig
@@ -131,16 +199,17 @@ def plot_robot(geom, path: Path | None = None, converged=None, title: str | None
 def animate_robot(frames: list, times: np.ndarray, path: Path, converged=None, fps: int = 15, max_frames: int = 120):
     """An animated GIF (Pillow) of a run from its stored shapes: ``frames`` a list of
     drawing.RobotGeometry (one per stored step), ``times`` (S,) [s]. At most ``max_frames``
-    frames (evenly picked), every frame on the same equal axes. Returns the frames drawn."""
+    frames (evenly picked), every frame on the same axes (:func:`plot_robot`'s views, holding
+    every frame), the tips' path so far (dotted) in the side and top views. Returns the frames drawn."""
     from matplotlib.animation import FuncAnimation, PillowWriter
 
     pick = np.unique(np.linspace(0, len(frames) - 1, min(len(frames), max_frames)).round().astype(int))
-    every = np.concatenate([np.concatenate([g.backbone.reshape(-1, 3)] + [t.reshape(-1, 3) for t in g.tendon_points])
-                            for g in (frames[i] for i in pick)] + [np.zeros((1, 3))])
-    norm, cmap = _tension_scale(np.stack([frames[i].tension[:MAX_ROBOTS_DRAWN] for i in pick]))
-    fig = plt.figure(figsize=(12, 4.4), layout="constrained")
-    axes = _robot_axes(fig, every)
-    fig.colorbar(plt.cm.ScalarMappable(norm=norm, cmap=cmap), ax=axes[(0, 1)], shrink=0.8, label="tendon tension [N]")
+    extents = [_robot_extent(frames[i]) for i in pick]
+    extent = {key: np.concatenate([e[key] for e in extents]) for key in ROBOT_VIEWS}
+    tensions = np.stack([frames[i].tension[:MAX_ROBOTS_DRAWN] for i in pick])
+    fig, axes, norm, cmap = _robot_figure(frames[pick[0]], extent, tensions, converged, (11, 5.6))
+    title = fig.suptitle(f"t = {times[pick[-1]]:.3f} s", x=0.02, ha="left")
+    tips = np.stack([frames[i].tip_position[:MAX_ROBOTS_DRAWN] for i in pick]) * MM  # (F, B, 3) [mm]
     fig.canvas.draw()
     fig.set_layout_engine("none")  # laid out once: every frame keeps the same axes
 
@@ -149,7 +218,10 @@ def animate_robot(frames: list, times: np.ndarray, path: Path, converged=None, f
             for ln in list(ax.lines):
                 ln.remove()
         _draw_robot(axes, frames[pick[n]], converged, norm, cmap)
-        axes["3d"].set_title(f"t = {times[pick[n]]:.3f} s", fontsize=9)
+        for key in ("side", "top"):
+            i, j = ROBOT_VIEWS[key]
+            axes[key].plot(tips[:n + 1, :, i], tips[:n + 1, :, j], ":", color="0.35", lw=1.0, gid="tip path")
+        title.set_text(f"t = {times[pick[n]]:.3f} s")
     anim = FuncAnimation(fig, draw, frames=len(pick))
     path = Path(path)
     tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp{path.suffix}")

@@ -29,11 +29,11 @@ from pathlib import Path
 
 import numpy as np
 
-from tdcr_warp.io.drawing import RobotGeometry, robot_geometry
+from tdcr_warp.io.drawing import AXIS_COLOURS, TENSION_SCALE, RobotGeometry, rod_colours, robot_geometry
 from tdcr_warp.model.robot import InputError, Robot
 
-__all__ = ["MAX_FRAMES", "MAX_RODS", "ROD_COLOURS", "TENSION_SCALE", "find_browser", "frame_indices", "robot_figure",
-           "screenshot", "shape_tensions", "viewer_spec", "write_run_viewer", "write_viewer"]
+__all__ = ["MAX_FRAMES", "MAX_RODS", "find_browser", "frame_indices", "robot_figure", "screenshot", "shape_tensions",
+           "viewer_spec", "write_run_viewer", "write_viewer"]
 
 MAX_RODS = 10  # rods the CLI draws (the first ones)
 MAX_FRAMES = 200  # animation frames kept of a longer trajectory (evenly spaced, first and last kept)
@@ -41,14 +41,7 @@ ROD_FRAMES = 1000  # and at most this many rods x frames (10 rods: 100 frames), 
 RIM_POINTS = 16  # segments of a disk's rim
 EYE = 2.1  # the camera's distance, in the largest of the scene box's half sizes (plotly's aspect ratios)
 MM = 1e3
-# rods: blues, greens, purples (no reds or oranges: those are the tensions); one rod: near black
-ROD_COLOURS = ["#1f77b4", "#2ca02c", "#9467bd", "#17becf", "#393b79", "#637939", "#bcbd22", "#5254a3",
-               "#8ca252", "#6b6ecf"]
-SINGLE_ROD_COLOUR = "#202020"
-DISK_COLOUR = "rgba(110, 110, 110, 0.75)"
-# tension: light orange (slack, still visible on white) to dark red (the largest tension drawn)
-TENSION_SCALE = [[0.0, "#fdae6b"], [0.4, "#f16913"], [0.75, "#d7301f"], [1.0, "#7f0000"]]
-AXIS_COLOURS = ("#e41a1c", "#33a02c", "#1f4fff")  # the frames' x, y, z
+RIM_COLOUR = "rgba(110, 110, 110, 0.75)"  # the disks' rims (the palette's rods, tensions and axes: drawing)
 
 
 def frame_indices(count: int, max_frames: int = MAX_FRAMES, rods: int = 1) -> np.ndarray:
@@ -100,7 +93,7 @@ def _traces(g: RobotGeometry, colours, cmax: float, axis_length: float, base, ba
             pts = _gapped([rims[b, d] * MM for d in range(D)])
             traces.append(dict(
                 type="scatter3d", mode="lines", name=f"{names[b]} disks", legendgroup=group, showlegend=False,
-                x=_f32(pts[:, 0]), y=_f32(pts[:, 1]), z=_f32(pts[:, 2]), line=dict(color=DISK_COLOUR, width=2),
+                x=_f32(pts[:, 0]), y=_f32(pts[:, 1]), z=_f32(pts[:, 2]), line=dict(color=RIM_COLOUR, width=2),
                 hovertemplate=f"{names[b]}: {D} disks<extra></extra>"))
         for k in range(K):
             q = g.tendon_points[k][b] * MM
@@ -190,12 +183,11 @@ def viewer_spec(robot: Robot, positions, rotations, s, tensions, *, times=None, 
     keep = frame_indices(F, max_frames, B)
     times = None if times is None else np.asarray(times, dtype=np.float64)
     names = [f"rod {b}" for b in range(B)] if names is None else list(names)
-    colours = [SINGLE_ROD_COLOUR] if B == 1 else [ROD_COLOURS[b % len(ROD_COLOURS)] for b in range(B)]
+    colours = rod_colours(B)
     finite = tau[keep][np.isfinite(tau[keep])]
     cmax = float(finite.max()) if finite.size and finite.max() > 0 else 1.0
     geoms = _geometries(robot, P[keep], R[keep], s, tau[keep], display)
-    length = float(np.max(geoms[0].s[:, -1]))
-    axis_length = max(2.5 * geoms[0].disk_radius, 0.06 * length)
+    axis_length = geoms[0].axis_length
     base, base_R = P[keep[0], :, 0], R[keep[0], :, 0]
     data = [_traces(g, colours, cmax, axis_length, base, base_R, names) for g in geoms]
     lo, hi = np.min([_bounds(d)[0] for d in data], axis=0), np.max([_bounds(d)[1] for d in data], axis=0)
