@@ -26,8 +26,9 @@ from tdcr_warp.core.solver import Shooting
 from tdcr_warp.kernels import layout
 from tdcr_warp.model.options import StaticOptions, describe_status
 from tdcr_warp.model.robot import InputError, Robot, check_command, check_slip, real_array, require_memory
-from tdcr_warp.physics.sensitivity import linearise, parameter_tables
-from tdcr_warp.physics.stability import jacobi_index, node_routing
+from tdcr_warp.physics.assessment import Assessor
+from tdcr_warp.physics.sensitivity import parameter_tables
+from tdcr_warp.physics.slack import available_lengths, linear_tensions, settle_slack, tendon_compliance
 
 __all__ = ["StaticOptions", "StaticProblem", "StaticSolution", "reference_lengths", "solve_static"]
 
@@ -221,6 +222,9 @@ class StaticProblem:
                                  integrator=opts.integrator, model=opts.model, device=device, rod=opts.rod,
                                  driver=opts.driver)
                         for lo, hi in self.chunks]
+        self.disp = np.flatnonzero(self.tables.tmode[0] >= 0)  # the displaced tendons
+        self.j_of = 6 + self.tables.tmode[0, self.disp]  # their shooting unknowns
+        self.assessor = Assessor(robot, self.tables, opts)
         self.lock = threading.Lock()
         self._reference = None
 
@@ -247,299 +251,166 @@ class StaticProblem:
             return tau, None
         return available_lengths(self.robot, self.reference_lengths(), tau, displacements)
 
+    @functools.cached_property
+    def tendon_compliance(self) -> np.ndarray:
+        """(B, K, K) the straight rod's linear tendon model (tdcr_warp.physics.slack.tendon_compliance), once."""
+        return tendon_compliance(self.robot, self.B)
+
     def start(self, tau: np.ndarray, avail: np.ndarray | None) -> np.ndarray:
         """Scaled straight-rod start (B, nu): the displaced tendons at the tensions of the linear
-        straight-rod model (``linear_tensions``), the base wrench of all tensions."""
+        straight-rod model (tdcr_warp.physics.slack.linear_tensions), the base wrench of all tensions."""
         t, B = self.tables, self.B
         scales = t.scale_rows(B)
         if avail is None:
             return t.straight.guess(tau) / scales
-        guess, z = self.linear_tensions(tau, avail)
+        guess, z = linear_tensions(self.robot, t, self.tendon_compliance, tau, avail)
         return np.concatenate([t.straight.guess(guess) / scales[:, :6], z], axis=1)
-
-    @functools.cached_property
-    def node_routes(self) -> tuple[np.ndarray, np.ndarray]:
-        """r and r' of every tendon at the grid's nodes (tdcr_warp.physics.stability.node_routing), once."""
-        return node_routing(self.robot, self.tables.grid)
-
-    @functools.cached_property
-    def tendon_compliance(self) -> np.ndarray:
-        """(B, K, K) the linear model of a straight rod (``linear_tensions``): tendon k shortens by
-        sum_j C_kj tau_j, C_kj = l_kj (r_k . r_j / EI + 1 / EA) + c_k l_k delta_kj (l_kj =
-        min(l_k, l_j): the bending and the compression of tendon j act where it runs; r at the
-        base). Built once per problem: it depends on the robot alone."""
-        rb, B, K = self.robot, self.B, self.robot.n_tendons
-        r = np.broadcast_to(rb.tendon_routing(0.0)[0], (B, K, 3))
-        lk = np.broadcast_to(rb.tendon_lengths(), (B, K))
-        lkj = np.minimum(lk[:, :, None], lk[:, None, :])
-        sec = rb.section()
-        ei = np.broadcast_to(sec["kbt"][:, 0], (B,))[:, None, None]
-        ea = np.broadcast_to(sec["kse"][:, 2], (B,))[:, None, None]
-        C = lkj * (np.einsum("bki,bji->bkj", r, r) / ei + 1.0 / ea)
-        return C + np.eye(K) * (np.broadcast_to(rb.tendon_columns("compliance"), (B, K)) * lk)[:, :, None]
-
-    def linear_tensions(self, tau: np.ndarray, avail: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Tensions (B, K) of the displaced tendons in the linear model of a straight rod
-        (``tendon_compliance``), and their scaled unknowns (B, Kd): the displaced set solves
-        C_DD tau_D = free_D - avail_D - C_DT tau_T, with an active set for slack (a negative
-        tension goes slack, the set solved again; pseudo-inverse: four tendons at 90 degrees
-        have a co-contraction mode no length fixes)."""
-        rb, t = self.robot, self.tables
-        B, K = tau.shape
-        disp = np.flatnonzero(t.tmode[0] >= 0)
-        C = self.tendon_compliance
-        is_disp = np.zeros(K, dtype=bool)
-        is_disp[disp] = True
-        free = np.broadcast_to(t.straight.path, (B, K))
-        known = np.where(is_disp, 0.0, tau)
-        rhs = free - avail - np.einsum("bkj,bj->bk", C, known)
-        active = np.broadcast_to(is_disp, (B, K)).copy()
-        for _ in range(len(disp) + 1):
-            both = active[:, :, None] & active[:, None, :]
-            M = np.where(both, C, np.eye(K))
-            sol = np.einsum("bkj,bj->bk", np.linalg.pinv(M), np.where(active, rhs, 0.0))
-            neg = active & (sol < 0)
-            if not neg.any():
-                break
-            active &= ~neg
-        guess = np.where(is_disp, np.where(active, sol, 0.0), tau)
-        scales = t.scale_rows(B)[:, 6:]
-        L = np.broadcast_to(rb.length, (B,))[:, None]
-        slope = np.broadcast_to(t.tendon[..., layout.T_SLACK_SLOPE], (B, K))[:, disp]
-        needed = (free - np.einsum("bkj,bj->bk", C, guess))[:, disp]
-        z = np.where(active[:, disp], guess[:, disp] / scales, (needed - avail[:, disp]) / (L * slope))
-        return guess, z
 
     def solve(self, tau: np.ndarray, initial: StaticSolution | None, displacements: np.ndarray | None = None,
               slip: np.ndarray | None = None, history: StaticSolution | None = None, *,
               sensitivities: bool = False, stability: str = "off", parameters: tuple = ()) -> StaticSolution:
         """One solve of the batch; with ``sensitivities`` or ``stability`` (see StaticOptions)
         also the rods' sensitivities (``parameters``: robot field names, tdcr_warp.physics.sensitivity)."""
-        opts, tables, B = self.opts, self.tables, self.B
+        opts, tables = self.opts, self.tables
         ptables = parameter_tables(self.robot, tables, parameters, opts.precision, opts.nodes, opts.specialize,
                                    opts.kink_loads, opts.tendon_states) if parameters else []
-        linear = sensitivities or stability != "off" or bool(parameters)
-        nu = tables.nu
-        scales = tables.scale_rows(B)
         tau, avail = self.command(tau, displacements)
-        K = tau.shape[1]
-        slip = np.ones((B, K)) if slip is None else slip
-        profile = None
-        if history is not None:
-            if history.base_wrench.shape[0] != B:
-                raise InputError(f"history: a solution of {history.base_wrench.shape[0]} rods, the batch has {B}")
-            if tables.features.friction:
-                if history.tension_slots is None or history.tension_slots.shape != (B, self.solvers[0].n_slots, 3 * K):
-                    raise InputError("history: expected a solution of this robot and solver options with friction "
-                                     "(its tension_slots)")
-                profile = history.tension_slots
-                # the predictor of a stick-slip step: the whole tendon slipping the way its motor moved
-                was = history.tendon_tension_base if avail is None else history.tendon_free_length
-                now = tau if avail is None else avail
-                moved = np.where(np.broadcast_to(tables.tmode[0] >= 0, (B, K)), was - now, now - was)
-                slip = np.where(moved >= 0, 1.0, -1.0)
-        # a quasi-static step starts from the last one, with a fresh Jacobian (a chain of Broyden
-        # updates goes stale as the shape and the stick-slip pattern move)
-        start = initial or history
-        warm = start is not None
-        if warm:
-            x_init = start.unknowns if start.unknowns is not None else start.base_wrench / scales[:, :6]
-            if x_init.shape != (B, nu) or start.jacobian.shape[1:] != (nu, nu):
-                raise InputError(f"initial: warm start has shape {x_init.shape}, this problem needs ({B}, {nu})")
-            x0, J0 = x_init, (start.jacobian if initial is not None else None)
-        else:
-            x0, J0 = self.start(tau, avail), None
-        newton = dict(tol=opts.tolerance, max_iter=opts.max_iter, max_step=opts.max_step,
-                      broyden=opts.jacobian == "broyden")
-        free = None if avail is None else np.broadcast_to(tables.straight.path, tau.shape)
-
-        disp = np.flatnonzero(tables.tmode[0] >= 0)
-        j_of = 6 + tables.tmode[0, disp]
-
-        def run(i):
-            lo, hi = self.chunks[i]
-            sh = self.solvers[i]
-            sh.set_command(tau[lo:hi], None if avail is None else avail[lo:hi])
-            sh.set_memory(slip[lo:hi], None)
-            taut = np.ones((hi - lo, K), dtype=bool)
-            taut[:, disp] = x0[lo:hi, j_of] >= 0
-            sh.set_taut(taut)
-            if J0 is not None:
-                sh.dev.put(sh.newton.J, J0[lo:hi])
-            sh.solve(x0[lo:hi], fresh_jacobian=J0 is None, **newton)
-            if opts.continuation and not warm:
-                finite, large, steps = continuation_steps(x0[lo:hi], opts.continuation)
-                redo = finite & (~sh.converged() | large)
-                if redo.any():
-                    load_continuation(sh, tables.rows("rod", lo, hi), tables.rows("pforce", lo, hi), tau[lo:hi],
-                                      x0[lo:hi], redo, steps, newton,
-                                      None if avail is None else (free[lo:hi], avail[lo:hi]))
-            if len(disp):
-                settle_slack(sh, taut, disp, j_of, newton)
-            if profile is not None:  # the stick-slip corrector, from the slipping predictor
-                ok = sh.converged()
-                iters, shots = sh.counts()
-                sh.set_memory(slip[lo:hi], profile[lo:hi])
-                sh.solve(np.where(ok[:, None], sh.newton.x.numpy(), x0[lo:hi]), **newton)
-                if len(disp):
-                    settle_slack(sh, taut, disp, j_of, newton)
-                it, sn = sh.counts()
-                sh.set_counts(it + iters, sn + shots)
-            res = sh.results()
-            if linear:
-                res |= self._linearise(sh, lo, hi, tau[lo:hi], taut, res, ptables, stability)
-                if stability == "stable":
-                    res = self._stable_branch(sh, lo, hi, tau[lo:hi], taut, res, ptables, newton, disp, j_of)
-            return res
-
-        parts = parallel(run, list(range(len(self.chunks))))
+        slip, profile = _slip_memory(tables, self.solvers[0].n_slots, tau, avail, slip, history)
+        x0, J0 = self._first_guess(tau, avail, initial, history)
+        newton = {"tol": opts.tolerance, "max_iter": opts.max_iter, "max_step": opts.max_step,
+                  "broyden": opts.jacobian == "broyden"}
+        job = _Job(tau=tau, avail=avail, slip=slip, profile=profile, x0=x0, J0=J0,
+                   warm=(initial or history) is not None, newton=newton, ptables=ptables,
+                   linear=sensitivities or stability != "off" or bool(parameters), stability=stability)
+        parts = parallel(lambda i: self._solve_chunk(i, job), list(range(len(self.chunks))))
         out = parts[0] if len(parts) == 1 else {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
-        x = out.pop("x")
-        out["base_wrench"] = x[:, :6] * scales[:, :6]
-        grid = tables.grid
-        s = np.broadcast_to(grid, (B, grid.shape[1])).astype(np.float64)
-        tendon = tendon_results(tables, out, x, tau, slip, profile is not None)
-        if linear:
-            bad = ~out["converged"]
-            for k in ("tip_jacobian", "tip_compliance", "tension_jacobian", "slack_jacobian", "parameter_jacobian"):
-                out[k][bad] = np.nan
-            out["parameter_names"] = tuple(parameters)
-            if stability != "off":
-                st = out["stability_index"]
-                out["status"] = np.where(st > 0, out["status"] | layout.UNSTABLE, out["status"]).astype(
-                    out["status"].dtype)
-        return StaticSolution(s=s, options=opts, unknowns=x, **out, **tendon)
+        return _solution(tables, opts, out, job, tuple(parameters))
 
-    def _linearise(self, sh: Shooting, lo: int, hi: int, tau: np.ndarray, taut: np.ndarray, res: dict,
-                   ptables: list, stability: str) -> dict:
-        """The sensitivities and (``stability``) the Jacobi index of rods lo:hi from their
-        solution ``res`` (the base of the probes: its shapes and residual)."""
-        t, o = self.tables, self.opts
-        base = {"res": sh.newton.r.numpy().astype(np.float64), "p": res["positions"][:, -1],
-                "R": res["rotations"][:, -1], "P": res["positions"], "Rn": res["rotations"], "n": res["n"],
-                "m": res["m"]}
-        K = tau.shape[1]
-        assess = stability != "off" and not t.features.friction and (o.model == "coupled" or K == 0)
-        lin = linearise(sh, tau, t, lo, hi, o.precision, ptables, base=base, shapes=assess)
-        b = hi - lo
-        out = {k: lin[k] for k in ("tip_jacobian", "tip_compliance", "parameter_jacobian")}
-        out["tension_jacobian"] = np.where(taut[:, :, None], lin["tension_jacobian"], 0.0)  # slack: no tension
-        out["slack_jacobian"] = np.where(taut[:, :, None], 0.0, lin["slack_jacobian"])
-        if stability != "off":
-            index, lag = np.full(b, -1, dtype=np.int64), np.full(b, np.nan)
-            if assess:
-                tension = res["tendons"][..., layout.TO_BASE] if "tendons" in res else tau
-                index, lag, _ = jacobi_index(sh, lin, t, self.node_routes, lo, hi, tension, o.precision,
-                                             o.rod == "kirchhoff", o.model == "coupled",
-                                             taut if t.features.displaced else None)
-                index = np.where(res["converged"], index, -1)
-            out |= {"stability_index": index, "lagrangian_error": lag}
-        out["integrations"] = res["integrations"] + lin["integrations"]
-        return out
+    def _first_guess(self, tau: np.ndarray, avail: np.ndarray | None, initial: StaticSolution | None,
+                     history: StaticSolution | None) -> tuple[np.ndarray, np.ndarray | None]:
+        """The scaled unknowns (B, nu) Newton starts from and the Jacobian (B, nu, nu) it reuses
+        (None: a fresh one): a warm start's (``initial``), a quasi-static step's last unknowns with a
+        fresh Jacobian (``history``: a chain of Broyden updates goes stale as the shape and the
+        stick-slip pattern move), else the straight-rod start."""
+        start = initial or history
+        if start is None:
+            return self.start(tau, avail), None
+        B, nu = self.B, self.tables.nu
+        x_init = start.unknowns if start.unknowns is not None else start.base_wrench / self.tables.scale_rows(B)[:, :6]
+        if x_init.shape != (B, nu) or start.jacobian.shape[1:] != (nu, nu):
+            raise InputError(f"initial: warm start has shape {x_init.shape}, this problem needs ({B}, {nu})")
+        return x_init, (start.jacobian if initial is not None else None)
 
-    def _stable_branch(self, sh: Shooting, lo: int, hi: int, tau: np.ndarray, taut: np.ndarray, res: dict,
-                       ptables: list, newton: dict, disp: np.ndarray, j_of: np.ndarray) -> dict:
-        """Rods whose equilibrium is unstable are solved again from restarts (``RESTARTS``: the
-        solution with an added base moment about each bending axis, both ways, of growing
-        size); the first stable equilibrium found is returned (branch 1), distinct
-        stable ones are reported (multiple_stable); a rod with none keeps its unstable
-        solution (branch -1). Iterations and integrations add up over the restarts."""
-        b = hi - lo
-        bad = res["stability_index"] > 0
-        branch = np.zeros(b, dtype=np.int8)
-        out = {k: (v.copy() if isinstance(v, np.ndarray) else v) for k, v in res.items()}
-        if bad.any():
-            x_star = res["x"]
-            L = np.broadcast_to(self.tables.rows("rod", lo, hi)[:, layout.LENGTH], (b,))
-            tips: list[list[np.ndarray]] = [[] for _ in range(b)]
-            lam_l = np.sqrt(np.maximum(1.0, -x_star[:, 2]))  # x[2] = n_z(0) L^2 / EI
-            for j, bend in RESTARTS:
-                start = x_star.copy()
-                start[:, j] += bend * lam_l
-                sh.solve(start, mask=bad.astype(np.int32), **newton)
-                if len(disp):
-                    settle_slack(sh, taut.copy(), disp, j_of, newton)
-                it, sn = sh.counts()
-                out["iterations"] = out["iterations"] + np.where(bad, it, 0)
-                out["integrations"] = out["integrations"] + np.where(bad, sn, 0)
-                got = sh.results()
-                got |= self._linearise(sh, lo, hi, tau, taut, got, ptables, "check")
-                ok = bad & got["converged"] & (got["stability_index"] == 0)
-                for i in np.flatnonzero(ok):
-                    tip = got["positions"][i, -1]
-                    if all(np.linalg.norm(tip - t) > DISTINCT * L[i] for t in tips[i]):
-                        tips[i].append(tip)
-                take = ok & (branch == 0)
-                for k, v in got.items():
-                    if isinstance(v, np.ndarray) and k not in ("iterations", "integrations"):
-                        out[k][take] = v[take]
-                branch[take] = 1
-            branch[bad & (branch == 0)] = -1
-            out["multiple_stable"] = np.array([len(t) > 1 for t in tips])
-        else:
-            out["multiple_stable"] = np.zeros(b, dtype=bool)
-        out["branch"] = branch
-        return out
-
-
-def available_lengths(robot: Robot, reference: np.ndarray, tau: np.ndarray,
-                      displacements: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
-    """Tensions with the displaced columns zeroed, and the unstretched length the motor gives
-    each displaced tendon, reference - q (B, K) [m] (None: q = 0), or an InputError where that is
-    not positive."""
-    disp = list(robot.displaced)
-    q = np.zeros_like(tau) if displacements is None else displacements
-    avail = np.zeros_like(tau)
-    avail[:, disp] = reference[:, disp] - q[:, disp]
-    bad = avail[:, disp] <= 0
-    if bad.any():
-        b, j = np.argwhere(bad)[0]
-        k = disp[j]
-        raise InputError(f"displacements[{b}][{k}] = {float(q[b, k])!r} m needs a negative tendon length: tendon {k} "
-                         f"holds {reference[b, k]:.6g} m of unstretched tendon at its reference")
-    tau = tau.copy()
-    tau[:, disp] = 0.0
-    return tau, avail
-
-
-SLACK_PASSES = 8
-# Restarts of an unstable rod: (scaled base-moment unknown, added moment in units of
-# max(1, lambda L) EI / L, lambda L = sqrt(P L^2 / EI) for the axial compression P at the
-# base). The bent branch of a compressed cantilever has a base moment of about 0.8 to 2
-# lambda L EI / L (the elastica from 1.1 to 10 times the buckling load).
-RESTARTS = tuple((j, sign * size) for size in (1.0, 2.0, 4.0) for j in (3, 4) for sign in (1.0, -1.0))
-DISTINCT = 1e-6  # stable equilibria whose tips are this many rod lengths apart are distinct
-
-
-def settle_slack(sh: Shooting, taut: np.ndarray, disp: np.ndarray, j_of: np.ndarray, newton: dict) -> None:
-    """The complementarity of displacement control, per rod: a taut tendon solved to a negative
-    tension goes slack (also where the solve failed: a wrong taut set can keep Newton from
-    converging), a slack one whose path needs more tendon than it has goes taut, and the rod is
-    solved again from where it stopped, until the set settles (``SLACK_PASSES``; then flagged
-    UNSETTLED). Each solve is smooth in its unknowns; the unknown of a tendon that switches is
-    near zero either way. Iterations and integrations add up over the passes."""
-    iters, shots = sh.counts()
-    for _ in range(SLACK_PASSES):
-        z = sh.newton.x.numpy()[:, j_of]
-        ok = sh.converged()
-        flip = np.where(taut[:, disp], z < 0, ok[:, None] & (z > 0))
-        rods = flip.any(axis=1)
-        if not rods.any():
-            break
-        taut[:, disp] ^= flip
+    def _solve_chunk(self, i: int, job: _Job) -> dict:
+        """Chunk i of the batch solved (host copies of its results, ``Shooting.results``): Newton from
+        the job's start, a load continuation for rods far from it, the slack set settled, the
+        stick-slip corrector, and on request the sensitivities, stability and stable branch."""
+        lo, hi = self.chunks[i]
+        sh, tables, newton, x0 = self.solvers[i], self.tables, job.newton, job.x0[lo:hi]
+        avail = None if job.avail is None else job.avail[lo:hi]
+        sh.set_command(job.tau[lo:hi], avail)
+        sh.set_memory(job.slip[lo:hi], None)
+        taut = np.ones((hi - lo, job.tau.shape[1]), dtype=bool)
+        taut[:, self.disp] = x0[:, self.j_of] >= 0
         sh.set_taut(taut)
-        sh.solve(None, mask=rods.astype(np.int32), **newton)
+        if job.J0 is not None:
+            sh.dev.put(sh.newton.J, job.J0[lo:hi])
+        sh.solve(x0, fresh_jacobian=job.J0 is None, **newton)
+        if self.opts.continuation and not job.warm:
+            finite, large, steps = continuation_steps(x0, self.opts.continuation)
+            redo = finite & (~sh.converged() | large)
+            if redo.any():
+                free = np.broadcast_to(tables.straight.path, job.tau.shape)[lo:hi]
+                load_continuation(sh, tables.rows("rod", lo, hi), tables.rows("pforce", lo, hi), job.tau[lo:hi], x0,
+                                  redo, steps, newton, None if avail is None else (free, avail))
+        if len(self.disp):
+            settle_slack(sh, taut, self.disp, self.j_of, newton)
+        if job.profile is not None:
+            self._stick_slip(sh, job.slip[lo:hi], job.profile[lo:hi], x0, taut, newton)
+        res = sh.results()
+        if job.linear:
+            res |= self.assessor.linearised(sh, lo, hi, job.tau[lo:hi], taut, res, job.ptables, job.stability)
+            if job.stability == "stable":
+                res = self.assessor.stable_branch(sh, lo, hi, job.tau[lo:hi], taut, res, job.ptables, newton,
+                                                  self.disp, self.j_of)
+        return res
+
+    def _stick_slip(self, sh: Shooting, slip: np.ndarray, profile: np.ndarray, x0: np.ndarray, taut: np.ndarray,
+                    newton: dict) -> None:
+        """The stick-slip corrector of a quasi-static step (friction with a history): solved again
+        with the previous tension ``profile`` remembered, from the slipping predictor where it
+        converged (else from x0); iterations and integrations add up."""
+        ok = sh.converged()
+        iters, shots = sh.counts()
+        sh.set_memory(slip, profile)
+        sh.solve(np.where(ok[:, None], sh.newton.x.numpy(), x0), **newton)
+        if len(self.disp):
+            settle_slack(sh, taut, self.disp, self.j_of, newton)
         it, sn = sh.counts()
-        iters[rods] += it[rods]
-        shots[rods] += sn[rods]
-    else:
-        z = sh.newton.x.numpy()[:, j_of]
-        bad = np.where(taut[:, disp], z < 0, z > 0).any(axis=1)
-        if bad.any():
-            st = sh.newton.status.numpy()
-            st[bad] = (st[bad] & ~layout.CONVERGED) | layout.UNSETTLED
-            sh.dev.put(sh.newton.status, st)
-    sh.set_counts(iters, shots)
+        sh.set_counts(it + iters, sn + shots)
+
+
+@dataclass
+class _Job:
+    """One solve of a StaticProblem's batch, as every chunk takes it: tensions tau (B, K) [N], the
+    displaced tendons' lengths avail (B, K) [m] or None, slip (B, K) and the stick-slip profile or
+    None (friction), the start x0 (B, nu) and Jacobian J0 or None, whether the start is warm, the
+    Newton settings, the parameters' tables and what to add (``linear``: sensitivities; stability)."""
+
+    tau: np.ndarray
+    avail: np.ndarray | None
+    slip: np.ndarray
+    profile: np.ndarray | None
+    x0: np.ndarray
+    J0: np.ndarray | None
+    warm: bool
+    newton: dict
+    ptables: list
+    linear: bool
+    stability: str
+
+
+def _slip_memory(tables: Tables, n_slots: int, tau: np.ndarray, avail: np.ndarray | None, slip: np.ndarray | None,
+                 history: StaticSolution | None) -> tuple[np.ndarray, np.ndarray | None]:
+    """Friction's slip directions (B, K) (default +1) and the tension profile of ``history`` a
+    stick-slip solve starts from (or None); given a history, the slip directions are the
+    predictor's: each whole tendon slipping the way its motor moved since then. n_slots: the
+    evaluation slots of a rod (Shooting.n_slots)."""
+    B, K = tau.shape
+    slip = np.ones((B, K)) if slip is None else slip
+    if history is None:
+        return slip, None
+    if history.base_wrench.shape[0] != B:
+        raise InputError(f"history: a solution of {history.base_wrench.shape[0]} rods, the batch has {B}")
+    if not tables.features.friction:
+        return slip, None
+    if history.tension_slots is None or history.tension_slots.shape != (B, n_slots, 3 * K):
+        raise InputError("history: expected a solution of this robot and solver options with friction "
+                         "(its tension_slots)")
+    was = history.tendon_tension_base if avail is None else history.tendon_free_length
+    now = tau if avail is None else avail
+    moved = np.where(np.broadcast_to(tables.tmode[0] >= 0, (B, K)), was - now, now - was)
+    return np.where(moved >= 0, 1.0, -1.0), history.tension_slots
+
+
+def _solution(tables: Tables, opts: StaticOptions, out: dict, job: _Job, parameters: tuple) -> StaticSolution:
+    """The StaticSolution of a batch from its chunks' joined results ``out``: the base wrench and
+    tendon fields unscaled, NaN sensitivities for rods that did not converge, UNSTABLE flagged."""
+    B = len(out["converged"])
+    x = out.pop("x")
+    out["base_wrench"] = x[:, :6] * tables.scale_rows(B)[:, :6]
+    s = np.broadcast_to(tables.grid, (B, tables.grid.shape[1])).astype(np.float64)
+    tendon = tendon_results(tables, out, x, job.tau, job.slip, job.profile is not None)
+    if job.linear:
+        bad = ~out["converged"]
+        for k in ("tip_jacobian", "tip_compliance", "tension_jacobian", "slack_jacobian", "parameter_jacobian"):
+            out[k][bad] = np.nan
+        out["parameter_names"] = parameters
+        if job.stability != "off":
+            st = out["stability_index"]
+            out["status"] = np.where(st > 0, out["status"] | layout.UNSTABLE, out["status"]).astype(
+                out["status"].dtype)
+    return StaticSolution(s=s, options=opts, unknowns=x, **out, **tendon)
 
 
 def tendon_results(tables: Tables, out: dict, x: np.ndarray, tau: np.ndarray, slip: np.ndarray,
