@@ -25,7 +25,8 @@ from tdcr_warp.kernels import layout
 from tdcr_warp.kernels.history import make_history_kernels
 from tdcr_warp.model.options import StaticOptions
 from tdcr_warp.model.robot import InputError, Robot, check_command, check_tensions, real_array, require_memory
-from tdcr_warp.physics.statics import StaticSolution, available_lengths, reference_lengths, settle_slack, solve_static
+from tdcr_warp.physics.slack import available_lengths, settle_slack
+from tdcr_warp.physics.statics import StaticSolution, reference_lengths, solve_static
 
 __all__ = ["Simulator", "StepResult", "Trajectory", "bdf_alpha_coefficients"]
 
@@ -82,6 +83,69 @@ class Trajectory:
         np.savez_compressed(path, **asdict(self))
 
 
+def _check_stepping(dt, alpha) -> None:
+    """An InputError unless dt [s] > 0 and alpha in (-0.5, 0]."""
+    if not (isinstance(dt, (int, float)) and math.isfinite(dt) and dt > 0):
+        raise InputError(f"dt must be a positive number of seconds, got {dt!r}")
+    if not (isinstance(alpha, (int, float)) and -0.5 < alpha <= 0.0):
+        raise InputError(f"alpha must be in (-0.5, 0], got {alpha!r}")
+
+
+def _warn_single_shooting(robot: Robot, precision: str, dt: float, c0: float) -> None:
+    """Warn where dt is below what single shooting resolves: a start error grows along the rod
+    by exp(L (rho A c0^2 / (EI + c0 Bbt))^(1/4) / sqrt 2), beyond the precision's reach past 1e6
+    (float64) or 1e4 (float32) (README, robustness envelope). Steps there may fail (flagged).
+    c0: BDF-alpha's c0 at dt [1/s]; the warning points at the Simulator's caller."""
+    sec = robot.section()
+    limit = math.log(1e6 if precision == "float64" else 1e4)
+    ei = sec["kbt"][:, :2].min(axis=1)
+    bbt = robot.damping_bending[:, :2].min(axis=1)
+    rho_a = robot.density * sec["area"]
+    c_ratio = c0 * dt  # c0 = c_ratio / dt
+
+    def growth(dt):  # inf where the numbers overflow (absurdly small dt)
+        c0 = np.float64(c_ratio) / dt
+        with np.errstate(over="ignore", invalid="ignore"):
+            g = robot.length * (rho_a * c0**2 / (ei + c0 * bbt)) ** 0.25 / math.sqrt(2)
+        return np.where(np.isfinite(g), g, np.inf)
+
+    g = np.atleast_1d(growth(dt))
+    worst = int(np.argmax(g))
+    if g[worst] <= limit:
+        return
+    lo, hi = math.log(dt), max(math.log(dt), math.log(1e3))  # growth falls as dt grows
+    for _ in range(100):  # bisect log dt
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if np.max(growth(math.exp(mid))) > limit else (lo, mid)
+    amp = f"1e{g[worst] / math.log(10):.0f}" if math.isfinite(g[worst]) else "beyond float64"
+    warnings.warn(f"dt = {dt:g} s is below the single-shooting limit of {int(np.sum(g > limit))} rod(s) "
+                  f"(rod {worst}: amplification {amp}; dt >= {math.exp(hi):.1e} s stays inside): steps may "
+                  "fail, and are then flagged", stacklevel=3)
+
+
+def _static_start(robot: Robot, tau: np.ndarray, displacements, initial: StaticSolution | None, opts: StaticOptions,
+                  device) -> tuple[StaticSolution, Tables, np.ndarray]:
+    """The static equilibrium the rods start from at rest (``initial``, else solved under ``tau`` and
+    ``displacements``; every rod converged, or an InputError), the robot's tables and the
+    solution's scaled shooting unknowns (B, nu)."""
+    B = tau.shape[0]
+    static = initial if initial is not None else solve_static(robot, tau, options=opts, device=device,
+                                                              displacements=displacements)
+    if static.base_wrench.shape[0] != B:
+        raise InputError(f"initial: {static.base_wrench.shape[0]} rods, the batch has {B}")
+    if not static.converged.all():
+        bad = np.flatnonzero(~static.converged)
+        raise InputError(f"the static start did not converge for rods {bad[:10].tolist()} "
+                         f"({static.failure_reasons()[bad[0]]})")
+    tables = Tables.of(robot, opts.nodes, opts.specialize, opts.kink_loads)
+    if tables.grid.shape[1] != static.s.shape[1]:
+        raise InputError("initial: its node count differs from the simulation's")
+    x0 = static.unknowns if static.unknowns is not None else static.base_wrench / tables.scale_rows(B)
+    if x0.shape[1] != tables.nu:
+        raise InputError(f"initial: {x0.shape[1]} shooting unknowns, this robot needs {tables.nu}")
+    return static, tables, x0
+
+
 class Simulator:
     """Holds the batch state of B rods and advances it in time.
 
@@ -106,46 +170,28 @@ class Simulator:
                  options: StaticOptions | None = None, device: str | None = None,
                  initial: StaticSolution | None = None, displacements=None, slip_speed: float = 1e-3,
                  **overrides):
-        if not (isinstance(dt, (int, float)) and math.isfinite(dt) and dt > 0):
-            raise InputError(f"dt must be a positive number of seconds, got {dt!r}")
-        if not (isinstance(alpha, (int, float)) and -0.5 < alpha <= 0.0):
-            raise InputError(f"alpha must be in (-0.5, 0], got {alpha!r}")
+        _check_stepping(dt, alpha)
         self.robot = robot
         self.opts = (options or StaticOptions()).override(**overrides)
         self.dt, self.alpha = float(dt), float(alpha)
         self.coef = bdf_alpha_coefficients(self.dt, self.alpha)
-        self._warn_single_shooting(robot, robot.section())
+        _warn_single_shooting(robot, self.opts.precision, self.dt, self.coef[0])
         if not (isinstance(slip_speed, (int, float)) and math.isfinite(slip_speed) and slip_speed > 0):
             raise InputError(f"slip_speed must be a positive speed [m/s], got {slip_speed!r}")
         self.slip_speed = float(slip_speed)
         tau, q = check_command(robot, tensions, displacements)
         self.B = tau.shape[0]
-        self._q = np.zeros_like(tau) if q is None else q  # the displacements held when a step gives none
         self.dev = wp.get_device(device)
+        self._command = _Commands(robot, self.opts, self.dev, self.B, np.zeros_like(tau) if q is None else q)
         if self.opts.model == "constant_curvature":
             raise InputError("dynamics needs a rod model: solver model 'coupled' or 'point'")
-        static = initial if initial is not None else solve_static(robot, tau, options=self.opts, device=self.dev,
-                                                                  displacements=displacements)
-        if static.base_wrench.shape[0] != self.B:
-            raise InputError(f"initial: {static.base_wrench.shape[0]} rods, the batch has {self.B}")
-        if not static.converged.all():
-            bad = np.flatnonzero(~static.converged)
-            raise InputError(f"the static start did not converge for rods {bad[:10].tolist()} "
-                             f"({static.failure_reasons()[bad[0]]})")
-        tables = Tables.of(robot, self.opts.nodes, self.opts.specialize, self.opts.kink_loads)
-        if tables.grid.shape[1] != static.s.shape[1]:
-            raise InputError("initial: its node count differs from the simulation's")
-        self.grid = np.broadcast_to(tables.grid, (self.B, tables.grid.shape[1]))
-        self.tables = tables
-        x0 = static.unknowns if static.unknowns is not None else static.base_wrench / tables.scale_rows(self.B)
-        if x0.shape[1] != tables.nu:
-            raise InputError(f"initial: {x0.shape[1]} shooting unknowns, this robot needs {tables.nu}")
-        self._reference = None
+        static, self.tables, x0 = _static_start(robot, tau, displacements, initial, self.opts, self.dev)
+        self.grid = np.broadcast_to(self.tables.grid, (self.B, self.tables.grid.shape[1]))
         self.path = static.tendon_path_length
         self.chunks = split(self.B, self.dev, self.opts.threads)
         _, avail = self._command(tau, displacements)
         self.slip = self.last_slip = np.ones((self.B, robot.n_tendons))  # the static start: pulled
-        self.parts = [_Chunk(self, tables, lo, hi, tau[lo:hi], x0[lo:hi], static.tip_position[lo:hi],
+        self.parts = [_Chunk(self, self.tables, lo, hi, tau[lo:hi], x0[lo:hi], static.tip_position[lo:hi],
                              None if avail is None else avail[lo:hi])
                       for lo, hi in self.chunks]
         self._tau_prev = tau
@@ -153,50 +199,6 @@ class Simulator:
         self.failed_step = np.full(self.B, -1)
         self.steps_done = 0
         self._read_tips()
-
-    def _warn_single_shooting(self, robot: Robot, sec: dict) -> None:
-        """Warn where dt is below what single shooting resolves: a start error grows along the rod
-        by exp(L (rho A c0^2 / (EI + c0 Bbt))^(1/4) / sqrt 2), beyond the precision's reach past 1e6
-        (float64) or 1e4 (float32) (README, robustness envelope). Steps there may fail (flagged)."""
-        limit = math.log(1e6 if self.opts.precision == "float64" else 1e4)
-        ei = sec["kbt"][:, :2].min(axis=1)
-        bbt = robot.damping_bending[:, :2].min(axis=1)
-        rho_a = robot.density * sec["area"]
-        c_ratio = self.coef[0] * self.dt  # c0 = c_ratio / dt
-
-        def growth(dt):  # inf where the numbers overflow (absurdly small dt)
-            c0 = np.float64(c_ratio) / dt
-            with np.errstate(over="ignore", invalid="ignore"):
-                g = robot.length * (rho_a * c0**2 / (ei + c0 * bbt)) ** 0.25 / math.sqrt(2)
-            return np.where(np.isfinite(g), g, np.inf)
-
-        g = np.atleast_1d(growth(self.dt))
-        worst = int(np.argmax(g))
-        if g[worst] <= limit:
-            return
-        lo, hi = math.log(self.dt), max(math.log(self.dt), math.log(1e3))  # growth falls as dt grows
-        for _ in range(100):  # bisect log dt
-            mid = 0.5 * (lo + hi)
-            lo, hi = (mid, hi) if np.max(growth(math.exp(mid))) > limit else (lo, mid)
-        amp = f"1e{g[worst] / math.log(10):.0f}" if math.isfinite(g[worst]) else "beyond float64"
-        warnings.warn(f"dt = {self.dt:g} s is below the single-shooting limit of {int(np.sum(g > limit))} rod(s) "
-                      f"(rod {worst}: amplification {amp}; dt >= {math.exp(hi):.1e} s stays inside): steps may "
-                      "fail, and are then flagged", stacklevel=3)
-
-    def _command(self, tensions, displacements) -> tuple[np.ndarray, np.ndarray | None]:
-        """Checked tensions (B, K) and the lengths given to displaced tendons (or None; no
-        displacements: the last ones)."""
-        rb = self.robot
-        tau, q = check_command(rb, tensions, displacements, self.B)
-        if tau.shape[0] != self.B:
-            raise InputError(f"tensions: {tau.shape[0]} rows for {self.B} rods")
-        if not rb.displaced:
-            return tau, None
-        self._q = self._q if q is None else q
-        q = self._q
-        if self._reference is None:
-            self._reference = reference_lengths(rb, options=self.opts, device=self.dev)
-        return available_lengths(rb, self._reference, tau, q)
 
     def _slip(self) -> np.ndarray:
         """Slip directions from the tendons' path-length rates over the last step."""
@@ -234,7 +236,7 @@ class Simulator:
     @property
     def displacements(self) -> np.ndarray:
         """(B, K) the motor displacements held now [m] (zero for tendons under tension control)."""
-        return self._q.copy()
+        return self._command.q.copy()
 
     def _read_tips(self) -> None:
         tips = [c.tips() for c in self.parts]
@@ -269,19 +271,6 @@ class Simulator:
         return (np.concatenate([c.sh.nodes.p.numpy().astype(np.float64) for c in self.parts]),
                 np.concatenate([c.sh.nodes.R.numpy().astype(np.float64) for c in self.parts]))
 
-    def _schedule(self, values, steps: int, name: str):
-        """The command of step i as a function: ``values`` (B, steps, K), (steps, K) or a callable."""
-        if callable(values):
-            return values
-        K = self.robot.n_tendons
-        sched = real_array(values, name, copy=False)
-        if sched.ndim == 2:
-            sched = np.broadcast_to(sched[None], (self.B,) + sched.shape)
-        if sched.shape != (self.B, steps, K):
-            raise InputError(f"{name}: expected shape ({self.B}, {steps}, {K}) or ({steps}, {K}), "
-                             f"got {np.shape(values)}")
-        return lambda i: sched[:, i]
-
     def simulate(self, schedule, steps: int, *, shapes_every: int = 0, progress: bool = False,
                  displacements=None) -> Trajectory:
         """Open loop: ``schedule`` is (B, steps, K) or (steps, K) [N], or a callable of the
@@ -290,42 +279,95 @@ class Simulator:
         if not isinstance(steps, int) or steps < 1:
             raise InputError(f"steps must be a positive integer, got {steps!r}")
         K = self.robot.n_tendons
-        get = self._schedule(schedule, steps, "schedule")
-        disp_at = None if displacements is None else self._schedule(displacements, steps, "displacements")
-        T, B = steps, self.B
-        require_memory(T * B * (8.0 * (9 + K) + 9) + (T // shapes_every if shapes_every else 0) * B * 96.0
-                       * self.grid.shape[1], f"steps = {T} for {B} rod(s): the trajectory")
-        tip = np.zeros((T + 1, B, 3))
-        vel = np.zeros((T + 1, B, 3))
-        acc = np.zeros((T + 1, B, 3))
-        tip[0], vel[0], acc[0] = self.tip_position, self.tip_velocity, self.tip_acceleration
-        taus = np.zeros((T, B, K))
-        conv = np.zeros((T, B), dtype=bool)
-        iters = np.zeros((T, B), dtype=np.int32)
-        resid = np.zeros((T, B))
-        status = np.zeros((T, B), dtype=np.int32)
-        shape_steps, shapes = [], []
-        if shapes_every:
-            shape_steps.append(0)
-            shapes.append(self.shapes())
-        bar = Progress(T, B) if progress else None
-        for i in range(T):
-            taus[i] = check_tensions(self.robot, get(i), name=f"schedule step {i}")
-            r = self.step(taus[i], None if disp_at is None else disp_at(i))
-            tip[i + 1], vel[i + 1], acc[i + 1] = r.tip_position, r.tip_velocity, r.tip_acceleration
-            conv[i], iters[i], resid[i], status[i] = r.converged, r.iterations, r.residual, r.status
-            if shapes_every and (i + 1) % shapes_every == 0:
-                shape_steps.append(i + 1)
-                shapes.append(self.shapes())
+        get = _schedule(schedule, steps, "schedule", self.B, K)
+        disp_at = None if displacements is None else _schedule(displacements, steps, "displacements", self.B, K)
+        rec = _Recording(self, steps, shapes_every)
+        bar = Progress(steps, self.B) if progress else None
+        for i in range(steps):
+            rec.taus[i] = check_tensions(self.robot, get(i), name=f"schedule step {i}")
+            rec.add(i, self.step(rec.taus[i], None if disp_at is None else disp_at(i)))
             if bar:
                 bar.update(i + 1, int((~self.alive).sum()))
         if bar:
             bar.close()
-        n1 = self.grid.shape[1]
-        return Trajectory(time=self.dt * np.arange(T + 1), tip_position=tip, tip_velocity=vel,
-                          tip_acceleration=acc, tensions=taus, converged=conv, iterations=iters,
-                          residual=resid, status=status, failed_step=self.failed_step.copy(),
-                          shape_steps=np.array(shape_steps, dtype=np.int32),
+        return rec.trajectory()
+
+
+def _schedule(values, steps: int, name: str, B: int, K: int):
+    """The command of step i as a function: ``values`` (B, steps, K), (steps, K) or a callable."""
+    if callable(values):
+        return values
+    sched = real_array(values, name, copy=False)
+    if sched.ndim == 2:
+        sched = np.broadcast_to(sched[None], (B,) + sched.shape)
+    if sched.shape != (B, steps, K):
+        raise InputError(f"{name}: expected shape ({B}, {steps}, {K}) or ({steps}, {K}), got {np.shape(values)}")
+    return lambda i: sched[:, i]
+
+
+class _Commands:
+    """The commands of a Simulator's steps: the checked tensions and, under displacement control,
+    the displacements held (the last ones given) and the unstretched length they give each tendon."""
+
+    def __init__(self, robot: Robot, opts: StaticOptions, device, B: int, q: np.ndarray):
+        self.robot, self.opts, self.device, self.B = robot, opts, device, B
+        self.q = q  # (B, K) [m] the displacements held when a step gives none
+        self._reference = None
+
+    def __call__(self, tensions, displacements) -> tuple[np.ndarray, np.ndarray | None]:
+        """Checked tensions (B, K) [N] and the lengths given to displaced tendons (B, K) [m] (or None;
+        no displacements: the last ones)."""
+        rb = self.robot
+        tau, q = check_command(rb, tensions, displacements, self.B)
+        if tau.shape[0] != self.B:
+            raise InputError(f"tensions: {tau.shape[0]} rows for {self.B} rods")
+        if not rb.displaced:
+            return tau, None
+        self.q = self.q if q is None else q
+        if self._reference is None:
+            self._reference = reference_lengths(rb, options=self.opts, device=self.device)
+        return available_lengths(rb, self._reference, tau, self.q)
+
+
+class _Recording:
+    """An open-loop run of a Simulator being recorded over T steps: the arrays of a
+    :class:`Trajectory`, from the simulator's state at the start (index 0)."""
+
+    def __init__(self, sim: Simulator, T: int, shapes_every: int):
+        B, K, n1 = sim.B, sim.robot.n_tendons, sim.grid.shape[1]
+        require_memory(T * B * (8.0 * (9 + K) + 9) + (T // shapes_every if shapes_every else 0) * B * 96.0
+                       * n1, f"steps = {T} for {B} rod(s): the trajectory")
+        self.sim, self.shapes_every = sim, shapes_every
+        self.tip = np.zeros((T + 1, B, 3))
+        self.vel = np.zeros((T + 1, B, 3))
+        self.acc = np.zeros((T + 1, B, 3))
+        self.tip[0], self.vel[0], self.acc[0] = sim.tip_position, sim.tip_velocity, sim.tip_acceleration
+        self.taus = np.zeros((T, B, K))
+        self.conv = np.zeros((T, B), dtype=bool)
+        self.iters = np.zeros((T, B), dtype=np.int32)
+        self.resid = np.zeros((T, B))
+        self.status = np.zeros((T, B), dtype=np.int32)
+        self.shape_steps, self.shapes = [], []
+        if shapes_every:
+            self.shape_steps.append(0)
+            self.shapes.append(sim.shapes())
+
+    def add(self, i: int, r: StepResult) -> None:
+        """Step i's outcome (and the shapes every ``shapes_every`` steps; its tensions go to ``taus``)."""
+        self.tip[i + 1], self.vel[i + 1], self.acc[i + 1] = r.tip_position, r.tip_velocity, r.tip_acceleration
+        self.conv[i], self.iters[i], self.resid[i], self.status[i] = r.converged, r.iterations, r.residual, r.status
+        if self.shapes_every and (i + 1) % self.shapes_every == 0:
+            self.shape_steps.append(i + 1)
+            self.shapes.append(self.sim.shapes())
+
+    def trajectory(self) -> Trajectory:
+        """The recorded run."""
+        sim, shapes = self.sim, self.shapes
+        B, n1, T = sim.B, sim.grid.shape[1], len(self.taus)
+        return Trajectory(time=sim.dt * np.arange(T + 1), tip_position=self.tip, tip_velocity=self.vel,
+                          tip_acceleration=self.acc, tensions=self.taus, converged=self.conv, iterations=self.iters,
+                          residual=self.resid, status=self.status, failed_step=sim.failed_step.copy(),
+                          shape_steps=np.array(self.shape_steps, dtype=np.int32),
                           positions=np.array([p for p, _ in shapes]) if shapes else np.zeros((0, B, n1, 3)),
                           rotations=np.array([R for _, R in shapes]) if shapes else np.zeros((0, B, n1, 3, 3)))
 
@@ -376,7 +418,11 @@ class _Chunk:
 
     def step(self, tau: np.ndarray, tau_prev: np.ndarray, alive: np.ndarray, first: bool, avail: np.ndarray | None,
              slip: np.ndarray | None):
-        sh, o, newton = self.sh, self.sim.opts, self.newton
+        """One time step of the live rods (``alive`` (b,)) under tau (b, K) [N] (tau_prev: the last
+        step's) and avail (b, K) [m] or None, with friction's slip (b, K) or None: Newton from the
+        extrapolated start (``first``: a fresh Jacobian), the slack set settled, the failed rods
+        retried, the history advanced. Returns (converged, status, iterations, residual) (b,) each."""
+        sh, newton = self.sh, self.newton
         sh.set_command(tau, avail)
         if slip is not None:
             sh.set_memory(slip, None)
@@ -385,9 +431,21 @@ class _Chunk:
             settle_slack(sh, self.taut, self.disp, self.j_of, newton)
         failed = alive & ~sh.converged()
         if failed.any():
-            # A large tension change in one step: reach it by a homotopy in the tension increment,
-            # each sub-problem from the last (same time step, same history).
-            failed = retry(sh, tension_increment(sh, tau_prev, tau), failed, self.x_prev, newton, o.continuation)
+            self._retry(failed, tau, tau_prev, avail)
+        status = sh.status().copy()
+        ok = ((status & layout.CONVERGED) != 0) & alive
+        sh.dev.put(self.ok, ok)
+        self._end_step()
+        return ok, status, sh.newton.iters.numpy().copy(), sh.newton.resnorm.numpy().astype(np.float64)
+
+    def _retry(self, failed: np.ndarray, tau: np.ndarray, tau_prev: np.ndarray, avail: np.ndarray | None) -> None:
+        """The rods ``failed`` (b,) of this step solved again: a homotopy in the tension increment,
+        then from a heavily damped copy of themselves, then by plain Newton; each only for the rods
+        the one before left failing."""
+        sh, o, newton = self.sh, self.sim.opts, self.newton
+        # A large tension change in one step: reach it by a homotopy in the tension increment,
+        # each sub-problem from the last (same time step, same history).
+        failed = retry(sh, tension_increment(sh, tau_prev, tau), failed, self.x_prev, newton, o.continuation)
         if failed.any():
             # A lightly damped rod that moves fast: single shooting amplifies start errors, so
             # the step is reached from a heavily damped copy of itself, which hardly moves from
@@ -396,11 +454,6 @@ class _Chunk:
             failed = self._damping_homotopy(failed)
         if failed.any():  # last resort: plain Newton (a fresh Jacobian at every iterate) from x(i)
             sh.solve(self.x_prev, mask=failed, **(newton | dict(broyden=False, max_iter=2 * o.max_iter)))
-        status = sh.status().copy()
-        ok = ((status & layout.CONVERGED) != 0) & alive
-        sh.dev.put(self.ok, ok)
-        self._end_step()
-        return ok, status, sh.newton.iters.numpy().copy(), sh.newton.resnorm.numpy().astype(np.float64)
 
     def _damping_homotopy(self, failed: np.ndarray) -> np.ndarray:
         """The failed rods reached from heavily damped copies of themselves: s K / c0 added to
