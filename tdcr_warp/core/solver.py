@@ -111,7 +111,8 @@ class Shooting:
 
     Device fields: ``model``, ``control``, ``step`` (dynamics: BDF-alpha history), ``nodes``
     (the state at the nodes of the last accepted trial) and ``newton`` (unknowns x, Jacobian J,
-    status, iterations, integrations, residual, and the scratch of the iteration).
+    status, iterations, integrations, residual, and the scratch of the iteration). ``probe``
+    integrates outside the Newton loop (``Probes``); ``loop`` runs that loop (``NewtonLoop``).
     """
 
     def __init__(self, tables: Tables, lo: int, hi: int, tau: np.ndarray, *, precision: str, integrator: str,
@@ -132,12 +133,13 @@ class Shooting:
         self.x_in = wp.zeros(b, dtype=k.vecu, device=device)  # host-given starts
         self.mask = wp.zeros(b, dtype=int, device=device)
         self.all_rods = wp.ones(b, dtype=int, device=device)
-        self.fused = _fused(driver, device)
+        self.loop = NewtonLoop(k, device, b, _fused(driver, device))
+        self.probe = Probes(self)
         # statics: the first Jacobian of a Broyden solve from probes over double steps, where that
         # stays accurate (RK4, error ~h^4, on a fine enough grid; Broyden corrects the rest)
         self.coarse_allowed = int(not dynamic and integrator == "rk4" and n1 - 1 >= COARSE_MIN_NODES)
         self.coarse_jacobian = self.coarse_allowed
-        _load_solver_kernels(k, self.fused, dynamic, device)  # before threads race to it
+        _load_solver_kernels(k, self.loop.fused, dynamic, device)  # before threads race to it
 
     def set_tensions(self, tau: np.ndarray) -> None:
         set_tensions(self.dev, self.control, tau)
@@ -174,40 +176,7 @@ class Shooting:
         """One integration per rod from scaled unknowns x (b, nu), storing shapes and slots."""
         self.dev.put(self.x_in, x)
         wp.launch(self.kern.evaluate, dim=self.b, device=self.device,
-                  inputs=[self.model, self.control, self.step, self.x_in, self.nodes, *self.probe_out, 1])
-
-    @functools.cached_property
-    def probe_out(self) -> tuple[wp.array, wp.array, wp.array]:
-        """(b,) residuals, tip positions and tip orientations of the last ``evaluate`` or ``probe``."""
-        k, d = self.kern, self.device
-        return (wp.zeros(self.b, dtype=k.vecu, device=d), wp.zeros(self.b, dtype=k.vec3, device=d),
-                wp.zeros(self.b, dtype=k.mat33, device=d))
-
-    @functools.cached_property
-    def probe_nodes(self):
-        """The shapes of a probe (``probe``), apart from the solution's ``nodes``; made with the
-        first probe, which also loads the evaluation kernel (once per Shooting, not per probe)."""
-        self.kern.evaluate.module.load(self.device, 1 if wp.get_device(self.device).is_cpu else 256)
-        return make_state(self.kern, self.dev, self.b, self.n1, self.dynamic)
-
-    def probe(self, x: np.ndarray, model=None, *, shapes: bool = False) -> dict[str, np.ndarray]:
-        """One integration per rod from scaled unknowns x (b, nu) under ``model`` (default this
-        problem's; a perturbed Model of the same shape) and the current Control, leaving the
-        solution untouched (statics: with ``shapes`` and friction the trial point's tension
-        profile is overwritten, so read ``results`` first). Returns float64 host copies of the residual
-        ``res`` (b, nu), the tip ``p`` (b, 3) and ``R`` (b, 3, 3) and with ``shapes`` the node
-        arrays ``P``, ``Rn``, ``n``, ``m`` (b, N+1, ...)."""
-        out = self.probe_nodes
-        self.dev.put(self.x_in, x)
-        wp.launch(self.kern.evaluate, dim=self.b, device=self.device,
-                  inputs=[model or self.model, self.control, self.step, self.x_in, out, *self.probe_out, int(shapes)])
-        f64 = np.float64
-        res, p, R = (a.numpy().astype(f64) for a in self.probe_out)
-        got = {"res": res, "p": p, "R": R}
-        if shapes:
-            got |= {"P": out.p.numpy().astype(f64), "Rn": out.R.numpy().astype(f64), "n": out.n.numpy().astype(f64),
-                    "m": out.m.numpy().astype(f64)}
-        return got
+                  inputs=[self.model, self.control, self.step, self.x_in, self.nodes, *self.probe.out, 1])
 
     def solve(self, start=None, *, tol: float, max_iter: int, max_step: float, broyden: bool,
               mask: np.ndarray | None = None, fresh_jacobian: bool = True) -> None:
@@ -216,9 +185,8 @@ class Shooting:
         start: scaled unknowns (b, 6) on the host, a device array of them, or None (the last
         solution). fresh_jacobian: finite differences first, or reuse ``newton.J`` (a warm
         start's Jacobian, or the last one)."""
-        k, nw = self.kern, self.newton
         if start is None:
-            x_from = nw.x
+            x_from = self.newton.x
         elif isinstance(start, wp.array):
             x_from = start
         else:
@@ -230,33 +198,7 @@ class Shooting:
             self.dev.put(self.mask, np.asarray(mask, dtype=np.int32))
             m = self.mask
         newton = [self.dev.wdtype(tol), int(max_iter), self.dev.wdtype(max_step), int(broyden)]
-        if self.fused:
-            wp.launch(k.solve, dim=self.b, device=self.device,
-                      inputs=[self.model, self.control, self.step, nw, self.nodes, x_from, int(fresh_jacobian),
-                              *newton, self.coarse_jacobian, m])
-            return
-        nw.n_active.zero_()
-        wp.launch(k.begin, dim=self.b, device=self.device, inputs=[nw, x_from, int(fresh_jacobian), m])
-        self._iterate_on_device(newton, max_iter)
-        wp.launch(k.finish, dim=self.b, device=self.device,
-                  inputs=[self.model, self.control, self.step, nw, self.nodes, m])
-
-    def _iterate_on_device(self, newton: list, max_iter: int) -> None:
-        """Iterations with a thread per (rod, probe); no host read inside a block (graph-capturable)."""
-        k, nw = self.kern, self.newton
-
-        def iteration():
-            wp.launch(k.probe, dim=self.b * k.width, device=self.device,
-                      inputs=[self.model, self.control, self.step, nw, self.nodes, newton[3], self.coarse_jacobian])
-            nw.n_active.zero_()
-            wp.launch(k.update, dim=self.b, device=self.device,
-                      inputs=[self.model, nw, *newton, self.coarse_jacobian])
-
-        for done in range(0, max_iter, CHECK_EVERY):
-            for _ in range(min(CHECK_EVERY, max_iter - done)):
-                iteration()
-            if int(nw.n_active.numpy()[0]) == 0:
-                break
+        self.loop.run(self, x_from, m, newton, fresh_jacobian)
 
     def counts(self) -> tuple[np.ndarray, np.ndarray]:
         """Newton iterations and integrations of every rod's last solve, (b,) int64 host copies."""
@@ -301,3 +243,88 @@ class Shooting:
             "residual": nw.resnorm.numpy().astype(f64), "orthogonality_error": out.orth.numpy().astype(f64),
             "jacobian": nw.J.numpy().astype(f64),
         }
+
+
+class NewtonLoop:
+    """How the Newton loop of a Shooting's b rods runs on its device: ``fused``, the whole loop of
+    every rod in one kernel launch (no host round trip at all; the CPU default), or a launch per
+    iteration with a thread per (rod, probe), repeated in blocks of CHECK_EVERY iterations between
+    reads of the count of rods still solving (the CUDA default)."""
+
+    def __init__(self, kern, device, b: int, fused: bool):
+        self.kern, self.device, self.b, self.fused = kern, device, b, fused
+
+    def run(self, sh: Shooting, x_from: wp.array, mask: wp.array, newton: list, fresh_jacobian: bool) -> None:
+        """Newton for the rods of ``sh`` in ``mask`` (device int per rod) from the unknowns ``x_from``;
+        newton = [tol, max_iter, max_step, broyden] in the kernels' types."""
+        k, nw = self.kern, sh.newton
+        if self.fused:
+            wp.launch(k.solve, dim=self.b, device=self.device,
+                      inputs=[sh.model, sh.control, sh.step, nw, sh.nodes, x_from, int(fresh_jacobian),
+                              *newton, sh.coarse_jacobian, mask])
+            return
+        nw.n_active.zero_()
+        wp.launch(k.begin, dim=self.b, device=self.device, inputs=[nw, x_from, int(fresh_jacobian), mask])
+        self._iterate(sh, newton)
+        wp.launch(k.finish, dim=self.b, device=self.device, inputs=[sh.model, sh.control, sh.step, nw, sh.nodes, mask])
+
+    def _iterate(self, sh: Shooting, newton: list) -> None:
+        """Iterations with a thread per (rod, probe); no host read inside a block (graph-capturable)."""
+        k, nw, max_iter = self.kern, sh.newton, newton[1]
+
+        def iteration():
+            wp.launch(k.probe, dim=self.b * k.width, device=self.device,
+                      inputs=[sh.model, sh.control, sh.step, nw, sh.nodes, newton[3], sh.coarse_jacobian])
+            nw.n_active.zero_()
+            wp.launch(k.update, dim=self.b, device=self.device, inputs=[sh.model, nw, *newton, sh.coarse_jacobian])
+
+        for done in range(0, max_iter, CHECK_EVERY):
+            for _ in range(min(CHECK_EVERY, max_iter - done)):
+                iteration()
+            if int(nw.n_active.numpy()[0]) == 0:
+                break
+
+
+class Probes:
+    """Single integrations of a Shooting's rods outside its Newton loop, leaving the solution
+    untouched: the probes of finite differences (sensitivities, the stability test). Their shapes
+    live apart from the solution's ``nodes``; the outputs ``out`` also serve ``Shooting.evaluate``."""
+
+    def __init__(self, sh: Shooting):
+        self.sh = sh
+
+    @functools.cached_property
+    def out(self) -> tuple[wp.array, wp.array, wp.array]:
+        """(b,) residuals, tip positions and tip orientations of the last ``evaluate`` or probe."""
+        sh = self.sh
+        k, d = sh.kern, sh.device
+        return (wp.zeros(sh.b, dtype=k.vecu, device=d), wp.zeros(sh.b, dtype=k.vec3, device=d),
+                wp.zeros(sh.b, dtype=k.mat33, device=d))
+
+    @functools.cached_property
+    def nodes(self):
+        """The shapes of a probe; made with the first probe, which also loads the evaluation
+        kernel (once per Shooting, not per probe)."""
+        sh = self.sh
+        sh.kern.evaluate.module.load(sh.device, 1 if wp.get_device(sh.device).is_cpu else 256)
+        return make_state(sh.kern, sh.dev, sh.b, sh.n1, sh.dynamic)
+
+    def __call__(self, x: np.ndarray, model=None, *, shapes: bool = False) -> dict[str, np.ndarray]:
+        """One integration per rod from scaled unknowns x (b, nu) under ``model`` (default the
+        problem's; a perturbed Model of the same shape) and the current Control (statics: with
+        ``shapes`` and friction the trial point's tension profile is overwritten, so read
+        ``Shooting.results`` first). Returns float64 host copies of the residual ``res`` (b, nu), the
+        tip ``p`` (b, 3) and ``R`` (b, 3, 3) and with ``shapes`` the node arrays ``P``, ``Rn``, ``n``,
+        ``m`` (b, N+1, ...)."""
+        sh = self.sh
+        out = self.nodes
+        sh.dev.put(sh.x_in, x)
+        wp.launch(sh.kern.evaluate, dim=sh.b, device=sh.device,
+                  inputs=[model or sh.model, sh.control, sh.step, sh.x_in, out, *self.out, int(shapes)])
+        f64 = np.float64
+        res, p, R = (a.numpy().astype(f64) for a in self.out)
+        got = {"res": res, "p": p, "R": R}
+        if shapes:
+            got |= {"P": out.p.numpy().astype(f64), "Rn": out.R.numpy().astype(f64), "n": out.n.numpy().astype(f64),
+                    "m": out.m.numpy().astype(f64)}
+        return got
