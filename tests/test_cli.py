@@ -290,3 +290,12 @@ def test_ik_table_errors(tmp_path, capsys, edit, message):
     scene = write(tmp_path, BASE + "\n" + edit + "\n")
     assert main(["ik", str(scene), "--out", str(tmp_path / "o")]) == 2
     assert message in capsys.readouterr().err
+
+
+def test_command_line_defers_figure_and_storage_libraries():
+    """Importing the CLI and building its parser (every command registered) loads no figure, storage
+    or search library: a command imports them when it draws, stores or searches."""
+    heavy = ("matplotlib", "plotly", "pyarrow", "zarr", "tomli_w", "cmaes", "ray", "scipy", "pandas")
+    code = (f"import sys, tdcr_warp.cli as cli; cli.build_parser(); print([m for m in {heavy!r} if m in sys.modules])")
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert run.stdout.strip() == "[]"

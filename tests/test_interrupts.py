@@ -60,7 +60,7 @@ PHASES = ([(c, "scene", "tdcr_warp.io.scene.scene_from_dict") for c in COMMANDS]
           + [(c, "kernels", "tdcr_warp.core.solver.load_kernels") for c in ("static", "simulate", "ik", "predict")]
           + [(c, "solve", target) for c, target in SOLVE.items()]
           + [(c, "figures", f"tdcr_warp.io.plotting.{f}") for c, f in FIGURES.items()]
-          + [(c, "results", "tdcr_warp.cli._write_json") for c in COMMANDS])
+          + [(c, "results", f"tdcr_warp.cli.{c}.write_json") for c in COMMANDS])  # where each command looks it up
 
 
 def interrupt(*args, **kwargs):

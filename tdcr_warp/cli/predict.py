@@ -1,0 +1,87 @@
+"""``tdcr-warp predict SCENE.toml DATA.csv ...``: the measured tips of keypoint CSVs predicted by
+a scene with a [hardware] table (tdcr_warp.apps.hardware); metrics.json, predictions.csv and
+predict.png."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from tdcr_warp.cli.common import (
+    add_command,
+    add_log_arguments,
+    add_solver_arguments,
+    apply_overrides,
+    load_kernels,
+    out_dir,
+    settings,
+    write_atomic,
+    write_json,
+)
+from tdcr_warp.model.robot import InputError
+
+# The units of predict's metrics.json entries (hardware.metrics; "1": a count, "%": of the robot's length).
+PREDICT_UNITS = {"rows": "1", "converged": "1", "rmse_mm": "mm", "rmse_aligned_mm": "mm", "median_mm": "mm",
+                 "p95_mm": "mm", "mean_offset_mm": "mm", "rmse_percent_of_length": "%", "wall_time_s": "s",
+                 "kernel_load_s": "s", "ms_per_row": "ms"}
+
+
+def add_data_argument(p) -> None:
+    """The keypoint CSV files after the scene (predict, fit)."""
+    p.add_argument("data", nargs="+", help="keypoint CSV file(s) (tdcr_warp.apps.hardware)")
+
+
+def register(subparsers) -> None:
+    p = add_command(subparsers, "predict", "predict measured tips (a scene with [hardware], a keypoint CSV)", run)
+    add_data_argument(p)
+    add_solver_arguments(p)
+    add_log_arguments(p)
+
+
+def run(args) -> int:
+    """Predict measured tips of a scene with a [hardware] table (tdcr_warp.apps.hardware)."""
+    from tdcr_warp.apps.hardware import metrics, predict, read_measurements
+    from tdcr_warp.io.plotting import plot_prediction
+    from tdcr_warp.io.scene import load_scene
+
+    scene = apply_overrides(load_scene(args.scene), args)
+    if scene.hardware is None:
+        raise InputError(f"{args.scene}: predict needs a [hardware] table (servo_columns, marker_offset, base_offset)")
+    meas = read_measurements(args.data, scene.hardware["servo_columns"])
+    out = out_dir(args, Path("out") / Path(args.scene).stem, "metrics.json")
+    load_s = load_kernels(scene, args)
+    pred = predict(scene, meas, device=args.device)
+    m = metrics(pred["error_mm"], pred["converged"], float(np.max(scene.robot.length)))
+    print(f"predicted {len(meas)} rows in {pred['wall_s']:.2f} s ({1e3 * pred['wall_s'] / len(meas):.2f} ms per row, "
+          f"one batched solve; kernel loading excluded): RMSE {m['rmse_mm']:.2f} mm, "
+          f"aligned {m['rmse_aligned_mm']:.2f} mm, "
+          f"median {m['median_mm']:.2f} mm, p95 {m['p95_mm']:.2f} mm, {m['converged']} of {m['rows']} converged")
+    write_predictions(out / "predictions.csv", meas, pred)
+    plot_prediction(meas.tip_mm, pred["point_mm"], pred["converged"], out / "predict.png")
+    write_json(out / "metrics.json", m | {"scene": str(args.scene), "data": [str(d) for d in args.data],
+                                          "wall_time_s": pred["wall_s"], "kernel_load_s": load_s,
+                                          "ms_per_row": 1e3 * pred["wall_s"] / len(meas),
+                                          "units": PREDICT_UNITS,
+                                          "settings": settings(scene, args.device or "default")})
+    print(f"wrote {out}/metrics.json, predictions.csv, predict.png")
+    return 0 if m["converged"] == m["rows"] else 1
+
+
+def write_predictions(path: Path, meas, pred: dict) -> None:
+    """predictions.csv: one row per input row, predicted and measured tip [mm], error, flags."""
+    import csv
+
+    K = pred["slack"].shape[1] if pred["slack"] is not None else 0
+    def write(tmp):
+        with open(tmp, "w", newline="") as f:
+            w = csv.writer(f)
+            w.writerow(["row", "source", "pattern_label", "pred_x_mm", "pred_y_mm", "pred_z_mm", "meas_x_mm",
+                        "meas_y_mm", "meas_z_mm", "error_mm", "converged", "retried"]
+                       + [f"slack_{k}" for k in range(K)])
+            err = np.linalg.norm(pred["error_mm"], axis=1)
+            for i in range(len(meas)):
+                w.writerow([i, meas.source[i], meas.labels[i], *np.round(pred["point_mm"][i], 6).tolist(),
+                            *meas.tip_mm[i].tolist(), round(float(err[i]), 6), int(pred["converged"][i]),
+                            int(pred["retried"][i])] + [int(x) for x in (pred["slack"][i] if K else [])])
+    write_atomic(path, write)

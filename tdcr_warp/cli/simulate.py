@@ -1,0 +1,87 @@
+"""``tdcr-warp simulate SCENE.toml``: the dynamics of a scene's [dynamics] table; results.json,
+trajectory.npz, the tip figures and (--animate, --html) robot.gif and robot.html."""
+
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+
+from tdcr_warp.cli.animation import add_run_arguments, animate, check_shapes, html_run
+from tdcr_warp.cli.common import (
+    add_command,
+    add_html_argument,
+    add_log_arguments,
+    add_no_figures_argument,
+    add_solver_arguments,
+    apply_overrides,
+    load_kernels,
+    out_dir,
+    print_rods,
+    settings,
+    write_json,
+    write_npz,
+)
+from tdcr_warp.model.robot import InputError
+
+
+def register(subparsers) -> None:
+    p = add_command(subparsers, "simulate", "run the dynamics of a scene ([dynamics] table)", run)
+    add_solver_arguments(p)
+    add_run_arguments(p)
+    add_html_argument(p, animated=True)
+    add_no_figures_argument(p)
+    add_log_arguments(p)
+
+
+def run(args) -> int:
+    from tdcr_warp.io.scene import load_scene
+    from tdcr_warp.physics.dynamics import Simulator
+
+    scene = apply_overrides(load_scene(args.scene), args)
+    spec = scene.dynamics
+    if spec is None:
+        raise InputError(f"{args.scene}: simulate needs a [dynamics] table (dt, steps, ...)")
+    steps = spec.steps if args.steps is None else args.steps
+    if steps > spec.steps:
+        raise InputError(f"--steps {steps} exceeds the scene's [dynamics].steps = {spec.steps}")
+    check_shapes(args, spec)
+    out = out_dir(args, Path("out") / Path(args.scene).stem, "results.json")
+    load_s = load_kernels(scene, args, dynamic=True)
+    t0 = time.perf_counter()
+    sim = Simulator(scene.robot, scene.tensions, dt=spec.dt, alpha=spec.alpha, options=scene.options,
+                    device=args.device)
+    t1 = time.perf_counter()
+    traj = sim.simulate(spec.schedule[:, :steps], steps, shapes_every=spec.shapes_every,
+                        progress=not args.quiet)
+    wall, stepping = time.perf_counter() - t0, time.perf_counter() - t1
+    B = sim.B
+    ok = traj.failed_step < 0
+    print(f"simulated {B} rod(s) x {steps} steps of {spec.dt} s in {stepping:.2f} s "
+          f"({B * steps / stepping:,.0f} rod-steps/s, real-time factor {steps * spec.dt / stepping:.2f} per batch; "
+          f"kernel loading and the {t1 - t0:.2f} s static start excluded)")
+    reasons = ["ok" if f < 0 else f"failed at step {f + 1}" for f in traj.failed_step]
+    print_rods(traj.tip_position[-1], ok, traj.iterations.max(axis=0), traj.residual[-1], reasons)
+    write_npz(out / "trajectory.npz", traj.to_npz)
+    if not args.no_figures:
+        from tdcr_warp.io.plotting import plot_tip_history
+        plot_tip_history(traj.time, traj.tip_position, traj.tip_velocity, traj.tip_acceleration, out)
+    if args.animate:
+        animate(scene, traj, sim.grid, out)
+    if args.html:
+        html_run(scene, traj, sim.grid, out)
+    results = {
+        "scene": str(args.scene), "settings": settings(scene, args.device or "default")
+        | {"dt": spec.dt, "alpha": spec.alpha, "steps": steps},
+        "batch_size": B, "wall_time_s": wall, "stepping_s": stepping, "kernel_load_s": load_s,
+        "final_tip_position": traj.tip_position[-1].tolist(), "completed": ok.tolist(),
+        "failed_step": [int(f) + 1 if f >= 0 else None for f in traj.failed_step],
+        "max_iterations": traj.iterations.max(axis=0).tolist(),
+    }
+    write_json(out / "results.json", results)
+    print(f"wrote {out}/results.json, trajectory.npz{'' if args.no_figures else ', tip_position.png, tip_rates.png'}")
+    if not ok.all():
+        print(f"{int((~ok).sum())} of {B} rods failed and were frozen (failed_step in results.json)",
+              file=sys.stderr)
+        return 1
+    return 0
