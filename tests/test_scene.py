@@ -139,7 +139,7 @@ def test_helix_radius_key_and_optional_fields():
     (dict(tendons__1__offset="far"), "[[tendons]] #2.offset: expected a number or a list of numbers, got 'far'"),
     (dict(tendons__1__length=-0.1), "[[tendons]] #2: tendon length must be positive, got -0.1"),
     (dict(tendons__1__length=0.6), "tendons[1].length must be <= the rod length, got 0.6"),
-    (dict(tendons__1__routing="zigzag"), "[[tendons]] #2.routing must be 'straight', 'helix', 'linear' or 'points', got 'zigzag'"),
+    (dict(tendons__1__routing="zigzag"), "[[tendons]] #2.routing must be one of ('straight', 'helix', 'linear', 'points'), got 'zigzag'"),
     (dict(tendons__1__turns=1.0), "[[tendons]] #2.turns is only for routing = \"helix\""),
     (dict(tendons__1__friction=-0.2), "[[tendons]] #2: tendon friction must be >= 0 (a friction coefficient mu)"),
     (dict(tendons__1__compliance=-1e-5), "[[tendons]] #2: tendon compliance must be >= 0 (a compliance [1/N])"),

@@ -244,73 +244,22 @@ class Robot:
     batch_size: int = field(init=False)
 
     def __post_init__(self):
-        scalars = ("length", "youngs_modulus", "poisson_ratio", "radius", "density")
-        vectors = ("precurvature", "gravity", "tip_force", "tip_moment", "damping_shear",
-                   "damping_bending", "drag")
-        for name in scalars:
+        for name in SCALARS:
             object.__setattr__(self, name, _as_field(name, getattr(self, name), ()))
-        for name in vectors:
+        for name in VECTORS:
             object.__setattr__(self, name, _as_field(name, getattr(self, name), (3,)))
-        for name in ("length", "youngs_modulus", "radius"):
-            _check(name, getattr(self, name), getattr(self, name) > 0, "positive")
-        _check("density", self.density, self.density >= 0, ">= 0")
-        for name in ("damping_shear", "damping_bending", "drag"):
-            _check(name, getattr(self, name), getattr(self, name) >= 0, ">= 0")
-        nu = self.poisson_ratio
-        _check("poisson_ratio", nu, (nu > -1) & (nu < 0.5), "in (-1, 0.5)")
-        for name, items, kind in (("tendons", self.tendons, Tendon),
-                                  ("point_forces", self.point_forces, PointForce)):
-            items = tuple(items)
-            for i, it in enumerate(items):
-                if not isinstance(it, kind):
-                    raise InputError(f"{name}[{i}]: expected {kind.__name__}, got {type(it).__name__}")
-            object.__setattr__(self, name, items)
-        fields = {n: getattr(self, n) for n in scalars + vectors}
-        for i, t in enumerate(self.tendons):
-            for n in ("offset", "helix_radius", "turns", "phase", "length", "offset_end", "compliance",
-                      "pretension", "friction"):  # (points are shared by the batch)
-                if getattr(t, n) is not None:
-                    fields[f"tendons[{i}].{n}"] = getattr(t, n)
-        for j, pf in enumerate(self.point_forces):
-            fields[f"point_forces[{j}].s"] = pf.s
-            fields[f"point_forces[{j}].force"] = pf.force
-        object.__setattr__(self, "batch_size", _batch(fields))
+        _check_ranges(self)
+        object.__setattr__(self, "tendons", _items("tendons", self.tendons, Tendon))
+        object.__setattr__(self, "point_forces", _items("point_forces", self.point_forces, PointForce))
+        object.__setattr__(self, "batch_size", _batch(_per_rod_fields(self)))
         with np.errstate(all="ignore"):
             object.__setattr__(self, "_section", self._compute_section())
-            sec = self.section()
-            derived = {"bending stiffness E I (from youngs_modulus, radius)": sec["kbt"][:, 0],
-                       "axial stiffness E A (from youngs_modulus, radius)": sec["kse"][:, 2],
-                       "scaled moment scale E I / L (from youngs_modulus, radius, length)":
-                           np.broadcast_to(sec["kbt"][:, 0], np.broadcast_shapes(sec["kbt"][:, 0].shape, self.length.shape))
-                           / self.length}
-        for name, val in derived.items():
-            ok = np.isfinite(val) & (val > 0) & (val < 1e300)
-            _check(name, np.asarray(val), ok, "finite and positive (the inputs are out of range)")
-        L = self.length
-        for i, t in enumerate(self.tendons):
-            if t.length is not None:
-                ok = np.broadcast_to(t.length <= L * (1 + 1e-12), np.broadcast_shapes(t.length.shape, L.shape))
-                _check(f"tendons[{i}].length", np.broadcast_to(t.length, ok.shape), ok, "<= the rod length")
-        for j, pf in enumerate(self.point_forces):
-            ok = np.broadcast_to(pf.s <= L * (1 + 1e-12), np.broadcast_shapes(pf.s.shape, L.shape))
-            _check(f"point_forces[{j}].s", np.broadcast_to(pf.s, ok.shape), ok, "<= the rod length")
-        for i, t in enumerate(self.tendons):
-            if t.routing == "points" and t.length is None and np.any(np.abs(t.points[-1, 0] - L) > 1e-12 * L):
-                raise InputError(f"tendons[{i}].points end at s = {float(t.points[-1, 0])!r}, the tendon runs to "
-                                 f"the tip at {float(L.max())!r} (set its length, or end the points there)")
+        _check_stiffness(self)
+        _check_within_length(self)
         if self.disk_radius is not None:
             object.__setattr__(self, "disk_radius", _as_field("disk_radius", self.disk_radius, ()))
             _check("disk_radius", self.disk_radius, self.disk_radius > 0, "positive")
-            if self.tendons:
-                frac = np.linspace(0.0, 1.0, 129)
-                lengths = self.tendon_lengths()
-                rad = np.stack([np.linalg.norm(self.tendon_routing(lengths * f)[0], axis=-1) for f in frac])
-                excess = rad - np.broadcast_to(self.disk_radius, lengths.shape)[None] * (1 + 1e-12)
-                if (excess > 0).any():
-                    j, b, k = np.unravel_index(np.argmax(excess), excess.shape)  # the worst sample
-                    raise InputError(f"tendons[{k}] routing leaves the disk: |r| = {rad[j, b, k]:.6g} m at s = "
-                                     f"{float(lengths[b, k] * frac[j]):.6g} m (rod {b}), beyond disk_radius = "
-                                     f"{float(np.broadcast_to(self.disk_radius, (b + 1,))[b])!r} m")
+            _check_inside_disks(self)
 
     @property
     def n_tendons(self) -> int:
@@ -416,6 +365,91 @@ class Robot:
         f = [pf.force for pf in self.point_forces]
         b = max(x.shape[0] for x in f)
         return s, np.stack([np.broadcast_to(x, (b, 3)) for x in f], axis=1)
+
+
+SCALARS = ("length", "youngs_modulus", "poisson_ratio", "radius", "density")  # Robot's fields: () or (B,)
+VECTORS = ("precurvature", "gravity", "tip_force", "tip_moment", "damping_shear", "damping_bending", "drag")
+
+
+def _items(name: str, items, kind: type) -> tuple:
+    """``items`` as a tuple, each a ``kind`` (an InputError naming the first that is not)."""
+    items = tuple(items)
+    for i, it in enumerate(items):
+        if not isinstance(it, kind):
+            raise InputError(f"{name}[{i}]: expected {kind.__name__}, got {type(it).__name__}")
+    return items
+
+
+def _check_ranges(robot: Robot) -> None:
+    """The robot's own numbers in range: positive sizes and modulus, density and damping >= 0,
+    Poisson's ratio in (-1, 0.5)."""
+    for name in ("length", "youngs_modulus", "radius"):
+        _check(name, getattr(robot, name), getattr(robot, name) > 0, "positive")
+    _check("density", robot.density, robot.density >= 0, ">= 0")
+    for name in ("damping_shear", "damping_bending", "drag"):
+        _check(name, getattr(robot, name), getattr(robot, name) >= 0, ">= 0")
+    nu = robot.poisson_ratio
+    _check("poisson_ratio", nu, (nu > -1) & (nu < 0.5), "in (-1, 0.5)")
+
+
+def _per_rod_fields(robot: Robot) -> dict[str, np.ndarray]:
+    """Every field of the robot, its tendons and point forces that may be given per rod."""
+    out = {n: getattr(robot, n) for n in SCALARS + VECTORS}
+    for i, t in enumerate(robot.tendons):
+        for n in ("offset", "helix_radius", "turns", "phase", "length", "offset_end", "compliance",
+                  "pretension", "friction"):  # (points are shared by the batch)
+            if getattr(t, n) is not None:
+                out[f"tendons[{i}].{n}"] = getattr(t, n)
+    for j, pf in enumerate(robot.point_forces):
+        out[f"point_forces[{j}].s"] = pf.s
+        out[f"point_forces[{j}].force"] = pf.force
+    return out
+
+
+def _check_stiffness(robot: Robot) -> None:
+    """The stiffnesses derived from the inputs finite and positive (each input may be in range
+    while their product overflows or vanishes)."""
+    with np.errstate(all="ignore"):
+        sec = robot.section()
+        derived = {"bending stiffness E I (from youngs_modulus, radius)": sec["kbt"][:, 0],
+                   "axial stiffness E A (from youngs_modulus, radius)": sec["kse"][:, 2],
+                   "scaled moment scale E I / L (from youngs_modulus, radius, length)":
+                       np.broadcast_to(sec["kbt"][:, 0], np.broadcast_shapes(sec["kbt"][:, 0].shape, robot.length.shape))
+                       / robot.length}
+    for name, val in derived.items():
+        ok = np.isfinite(val) & (val > 0) & (val < 1e300)
+        _check(name, np.asarray(val), ok, "finite and positive (the inputs are out of range)")
+
+
+def _check_within_length(robot: Robot) -> None:
+    """Tendon terminations, point forces and the last route point within the rod."""
+    L = robot.length
+    for i, t in enumerate(robot.tendons):
+        if t.length is not None:
+            ok = np.broadcast_to(t.length <= L * (1 + 1e-12), np.broadcast_shapes(t.length.shape, L.shape))
+            _check(f"tendons[{i}].length", np.broadcast_to(t.length, ok.shape), ok, "<= the rod length")
+    for j, pf in enumerate(robot.point_forces):
+        ok = np.broadcast_to(pf.s <= L * (1 + 1e-12), np.broadcast_shapes(pf.s.shape, L.shape))
+        _check(f"point_forces[{j}].s", np.broadcast_to(pf.s, ok.shape), ok, "<= the rod length")
+    for i, t in enumerate(robot.tendons):
+        if t.routing == "points" and t.length is None and np.any(np.abs(t.points[-1, 0] - L) > 1e-12 * L):
+            raise InputError(f"tendons[{i}].points end at s = {float(t.points[-1, 0])!r}, the tendon runs to "
+                             f"the tip at {float(L.max())!r} (set its length, or end the points there)")
+
+
+def _check_inside_disks(robot: Robot) -> None:
+    """Every tendon route within disk_radius of the axis (129 samples along each tendon)."""
+    if not robot.tendons:
+        return
+    frac = np.linspace(0.0, 1.0, 129)
+    lengths = robot.tendon_lengths()
+    rad = np.stack([np.linalg.norm(robot.tendon_routing(lengths * f)[0], axis=-1) for f in frac])
+    excess = rad - np.broadcast_to(robot.disk_radius, lengths.shape)[None] * (1 + 1e-12)
+    if (excess > 0).any():
+        j, b, k = np.unravel_index(np.argmax(excess), excess.shape)  # the worst sample
+        raise InputError(f"tendons[{k}] routing leaves the disk: |r| = {rad[j, b, k]:.6g} m at s = "
+                         f"{float(lengths[b, k] * frac[j]):.6g} m (rod {b}), beyond disk_radius = "
+                         f"{float(np.broadcast_to(robot.disk_radius, (b + 1,))[b])!r} m")
 
 
 def _stack_cols(cols: list[np.ndarray]) -> np.ndarray:
