@@ -1,9 +1,18 @@
-"""Per-rod damped (quasi-)Newton on ``nu`` scaled unknowns: the dense solve, the
-finite-difference probes and the one verdict (converged / stalled / singular / non-finite /
-iteration cap) of every rod.
+"""Damped (quasi-)Newton iterations, one per rod, for a residual of nu unknowns: finite-
+difference Jacobians, Broyden updates between them, backtracking, and the verdict (converged /
+singular / non-finite / iteration cap) of every rod.
 
 Nothing here knows what the unknowns mean: a shooting problem supplies the residual of a
 trial point and of its probes (``Newton.res``), and calls ``update`` once per iteration.
+
+  Newton, begin, refresh   the per-rod solver state; start a rod; rebuild J at x next
+  solve_dense              Gaussian elimination with partial pivoting
+  fd_step, probe_point     the finite-difference probes of a trial point
+  new_jacobian             J from the probes' residuals (forward or central differences)
+  take_point               the trial point becomes x: J rebuilt or Broyden-updated
+  newton_step              the next trial point from J, x and r
+  update                   one iteration's verdict and next trial point
+
 ``make_newton(dtype, nu, central)`` builds the functions for one precision and size.
 """
 
@@ -15,24 +24,18 @@ import warp as wp
 from .layout import CONVERGED, MAX_ITER, NONFINITE, PRECISION_LIMITED, SINGULAR, STALLED
 
 
+def probe_counts(nu: int, central: bool):
+    """n_probes: the trial point + its finite-difference probes (2 nu central, nu forward);
+    width: the residual table's columns (forward: + the base of approximate probes)."""
+    n_probes = 1 + (2 * nu if central else nu)
+    return n_probes, n_probes + (0 if central else 1)
+
+
 @functools.cache
-def make_newton(dtype, nu: int, central: bool):
-    """central: Jacobian by central differences (2 nu probes) instead of forward (nu). With
-    forward differences the residual table has one more column: the trial point evaluated like
-    the probes, the base of their differences when the probes are a cheaper approximation of the
-    problem (``update(..., coarse=1)``)."""
+def make_newton_state(dtype, nu: int):
+    """The ``Newton`` struct of one precision and size, ``begin`` and ``refresh``."""
     vec = wp.types.vector(nu, dtype)
     mat = wp.types.matrix((nu, nu), dtype)
-    n_probes = 1 + (2 * nu if central else nu)  # the trial point + its finite-difference probes
-    width = n_probes + (0 if central else 1)  # + the base of approximate probes
-    zero = dtype(0.0)
-    half = dtype(0.5)
-    f64 = dtype == wp.float64
-    fd_rel = dtype(1.5e-8) if f64 else dtype(3.0e-4)
-    pivot_rel = dtype(1.0e-13) if f64 else dtype(1.0e-6)
-    # A Newton step this small (relative to x) from a fresh Jacobian: x is exact to working
-    # precision, and the residual is at its round-off floor (stiff problems, e.g. small dt).
-    x_floor = dtype(1.0e-12) if f64 else dtype(1.0e-5)
 
     @wp.struct
     class Newton:
@@ -56,19 +59,43 @@ def make_newton(dtype, nu: int, central: bool):
         n_active: wp.array(dtype=int)  # (1,) rods still solving after the last update
 
     @wp.func
-    def fd_step(x: dtype):
-        return fd_rel * wp.max(dtype(1.0), wp.abs(x))
+    def begin(nw: Newton, i: int, x_from: wp.array(dtype=vec), fresh_jacobian: int):
+        """Start rod i at x_from[i] (the trial point), with a finite-difference J first or not."""
+        nw.xt[i] = x_from[i]
+        nw.active[i] = 1
+        nw.need_jac[i] = fresh_jacobian
+        nw.flags[i] = 0
+        nw.status[i] = 0
+        nw.iters[i] = 0
+        nw.n_shoot[i] = 0
+        nw.lam[i] = dtype(1.0)
+        nw.resnorm[i] = dtype(wp.inf)
+        wp.atomic_add(nw.n_active, 0, 1)
 
     @wp.func
-    def probe_point(x: vec, j: int):
-        """Probe j of the trial point x (j = 0 and j = n_probes, the base: x itself)."""
-        if j >= n_probes:
-            return x
-        if j > nu:
-            x[j - nu - 1] = x[j - nu - 1] - fd_step(x[j - nu - 1])
-        elif j > 0:
-            x[j - 1] = x[j - 1] + fd_step(x[j - 1])
-        return x
+    def refresh(nw: Newton, i: int, it: int, max_iter: int):
+        """Rebuild J by finite differences at the accepted point (next iteration)."""
+        if it >= max_iter:
+            nw.status[i] = MAX_ITER
+            nw.active[i] = 0
+            nw.flags[i] = 1 | 4
+            return
+        nw.need_jac[i] = 1
+        nw.flags[i] = 1 | 4
+        nw.xt[i] = nw.x[i]
+        nw.lam[i] = dtype(1.0)
+        wp.atomic_add(nw.n_active, 0, 1)
+
+    return SimpleNamespace(Newton=Newton, vec=vec, mat=mat, begin=begin, refresh=refresh)
+
+
+@functools.cache
+def make_dense_solve(dtype, nu: int):
+    """``solve_dense``: A x = b for one nu x nu system."""
+    vec = wp.types.vector(nu, dtype)
+    mat = wp.types.matrix((nu, nu), dtype)
+    zero = dtype(0.0)
+    pivot_rel = dtype(1.0e-13) if dtype == wp.float64 else dtype(1.0e-6)
 
     @wp.func
     def solve_dense(A: mat, b: vec):
@@ -115,19 +142,117 @@ def make_newton(dtype, nu: int, central: bool):
             x[i] = acc / A[i, i]
         return x, ok
 
+    return SimpleNamespace(solve_dense=solve_dense)
+
+
+@functools.cache
+def make_probes(dtype, nu: int, central: bool):
+    """The finite-difference probes of a trial point, and the Jacobian at an accepted one."""
+    vec = wp.types.vector(nu, dtype)
+    n_probes = probe_counts(nu, central)[0]
+    fd_rel = dtype(1.5e-8) if dtype == wp.float64 else dtype(3.0e-4)
+    st = make_newton_state(dtype, nu)
+    Newton, mat = st.Newton, st.mat
+
     @wp.func
-    def refresh(nw: Newton, i: int, it: int, max_iter: int):
-        """Rebuild J by finite differences at the accepted point (next iteration)."""
-        if it >= max_iter:
-            nw.status[i] = MAX_ITER
-            nw.active[i] = 0
-            nw.flags[i] = 1 | 4
+    def fd_step(x: dtype):
+        return fd_rel * wp.max(dtype(1.0), wp.abs(x))
+
+    @wp.func
+    def probe_point(x: vec, j: int):
+        """Probe j of the trial point x (j = 0 and j = n_probes, the base: x itself)."""
+        if j >= n_probes:
+            return x
+        if j > nu:
+            x[j - nu - 1] = x[j - nu - 1] - fd_step(x[j - nu - 1])
+        elif j > 0:
+            x[j - 1] = x[j - 1] + fd_step(x[j - 1])
+        return x
+
+    @wp.func
+    def new_jacobian(nw: Newton, i: int, rt: vec, xi: vec, coarse: int):
+        """J at the trial point xi from the residuals of its probes; coarse = 1: forward
+        differences from the trial point evaluated like the probes (``res[i, n_probes]``)."""
+        Jn = mat()
+        base = rt
+        if coarse != 0:
+            base = nw.res[i, n_probes]
+        for c in range(nu):
+            col = (nw.res[i, c + 1] - base) / fd_step(xi[c])
+            if wp.static(central):
+                col = (nw.res[i, c + 1] - nw.res[i, c + 1 + nu]) / (dtype(2.0) * fd_step(xi[c]))
+            for row in range(nu):
+                Jn[row, c] = col[row]
+        return Jn
+
+    @wp.func
+    def take_point(nw: Newton, i: int, rt: vec, nj: int, have_x: int, fresh: int, coarse: int):
+        """The trial point becomes x: J rebuilt from its probes (``nj``) or Broyden-updated
+        from the last x. Returns whether J is a finite-difference one."""
+        xi = nw.xt[i]
+        if nj != 0:
+            nw.J[i] = new_jacobian(nw, i, rt, xi, coarse)
+            fresh = 1
+        elif have_x != 0:
+            sx = xi - nw.x[i]
+            Ji = nw.J[i]
+            dr = (rt - nw.r[i]) - Ji * sx
+            nw.J[i] = Ji + wp.outer(dr, sx) / wp.dot(sx, sx)
+            fresh = 0
+        nw.x[i] = xi
+        nw.r[i] = rt
+        return fresh
+
+    return SimpleNamespace(fd_step=fd_step, probe_point=probe_point, new_jacobian=new_jacobian, take_point=take_point)
+
+
+@functools.cache
+def make_newton_step(dtype, nu: int):
+    """``newton_step``: the next trial point from the accepted one."""
+    # A Newton step this small (relative to x) from a fresh Jacobian: x is exact to working
+    # precision, and the residual is at its round-off floor (stiff problems, e.g. small dt).
+    x_floor = dtype(1.0e-12) if dtype == wp.float64 else dtype(1.0e-5)
+    st = make_newton_state(dtype, nu)
+    Newton, refresh = st.Newton, st.refresh
+    solve_dense = make_dense_solve(dtype, nu).solve_dense
+
+    @wp.func
+    def newton_step(nw: Newton, i: int, fresh: int, it: int, max_iter: int, max_step: dtype):
+        """The next trial point x + lam dx, J dx = -r (dx at most max_step long), or the verdict:
+        singular, or converged to working precision (a tiny step from a fresh J)."""
+        dx, ok = solve_dense(nw.J[i], -nw.r[i])
+        if ok == 0 or not wp.isfinite(wp.length_sq(dx)):
+            if fresh != 0:
+                nw.status[i] = SINGULAR
+                nw.active[i] = 0
+                return
+            refresh(nw, i, it, max_iter)
             return
-        nw.need_jac[i] = 1
-        nw.flags[i] = 1 | 4
-        nw.xt[i] = nw.x[i]
-        nw.lam[i] = dtype(1.0)
+        nd = wp.length(dx)
+        if fresh != 0 and nd < x_floor * wp.max(dtype(1.0), wp.length(nw.x[i])):
+            nw.status[i] = CONVERGED | PRECISION_LIMITED
+            nw.active[i] = 0
+            nw.flags[i] = 1 | 2
+            return
+        if nd > max_step:
+            dx = dx * (max_step / nd)
+        nw.xt[i] = nw.x[i] + nw.lam[i] * dx
+        nw.flags[i] = 1 | (fresh << 1)
         wp.atomic_add(nw.n_active, 0, 1)
+
+    return SimpleNamespace(newton_step=newton_step)
+
+
+@functools.cache
+def make_update(dtype, nu: int, central: bool):
+    """``update``: one damped (quasi-)Newton iteration of a rod."""
+    vec = wp.types.vector(nu, dtype)
+    half = dtype(0.5)
+    n_probes = probe_counts(nu, central)[0]
+    st = make_newton_state(dtype, nu)
+    Newton, refresh = st.Newton, st.refresh
+    take_point = make_probes(dtype, nu, central).take_point
+    newton_step = make_newton_step(dtype, nu).newton_step
 
     @wp.func
     def update(nw: Newton, i: int, scale: dtype, tol: dtype, max_iter: int, max_step: dtype, broyden: int,
@@ -150,32 +275,11 @@ def make_newton(dtype, nu: int, central: bool):
         it = nw.iters[i] + 1
         nw.iters[i] = it
         finite = wp.isfinite(wp.length_sq(rt))
-        accept = finite
+        better = finite
         if have_x != 0 and refreshed == 0:
-            accept = finite and wp.length(rt) < wp.length(nw.r[i])
-        if accept:
-            xi = nw.xt[i]
-            if nj != 0:
-                Jn = mat()
-                base = rt
-                if coarse != 0:
-                    base = nw.res[i, n_probes]
-                for c in range(nu):
-                    col = (nw.res[i, c + 1] - base) / fd_step(xi[c])
-                    if wp.static(central):
-                        col = (nw.res[i, c + 1] - nw.res[i, c + 1 + nu]) / (dtype(2.0) * fd_step(xi[c]))
-                    for row in range(nu):
-                        Jn[row, c] = col[row]
-                nw.J[i] = Jn
-                fresh = 1
-            elif have_x != 0:
-                sx = xi - nw.x[i]
-                Ji = nw.J[i]
-                dr = (rt - nw.r[i]) - Ji * sx
-                nw.J[i] = Ji + wp.outer(dr, sx) / wp.dot(sx, sx)
-                fresh = 0
-            nw.x[i] = xi
-            nw.r[i] = rt
+            better = finite and wp.length(rt) < wp.length(nw.r[i])
+        if better:
+            fresh = take_point(nw, i, rt, nj, have_x, fresh, coarse)
             have_x = 1
             nw.lam[i] = dtype(1.0)
             rn = scale * wp.length(rt)
@@ -204,39 +308,20 @@ def make_newton(dtype, nu: int, central: bool):
             nw.active[i] = 0
             nw.flags[i] = have_x | (fresh << 1)
             return
-        dx, ok = solve_dense(nw.J[i], -nw.r[i])
-        if ok == 0 or not wp.isfinite(wp.length_sq(dx)):
-            if fresh != 0:
-                nw.status[i] = SINGULAR
-                nw.active[i] = 0
-                return
-            refresh(nw, i, it, max_iter)
-            return
-        nd = wp.length(dx)
-        if fresh != 0 and nd < x_floor * wp.max(dtype(1.0), wp.length(nw.x[i])):
-            nw.status[i] = CONVERGED | PRECISION_LIMITED
-            nw.active[i] = 0
-            nw.flags[i] = 1 | 2
-            return
-        if nd > max_step:
-            dx = dx * (max_step / nd)
-        nw.xt[i] = nw.x[i] + nw.lam[i] * dx
-        nw.flags[i] = 1 | (fresh << 1)
-        wp.atomic_add(nw.n_active, 0, 1)
+        newton_step(nw, i, fresh, it, max_iter, max_step)
 
-    @wp.func
-    def begin(nw: Newton, i: int, x_from: wp.array(dtype=vec), fresh_jacobian: int):
-        """Start rod i at x_from[i] (the trial point), with a finite-difference J first or not."""
-        nw.xt[i] = x_from[i]
-        nw.active[i] = 1
-        nw.need_jac[i] = fresh_jacobian
-        nw.flags[i] = 0
-        nw.status[i] = 0
-        nw.iters[i] = 0
-        nw.n_shoot[i] = 0
-        nw.lam[i] = dtype(1.0)
-        nw.resnorm[i] = dtype(wp.inf)
-        wp.atomic_add(nw.n_active, 0, 1)
+    return SimpleNamespace(update=update)
 
-    return SimpleNamespace(Newton=Newton, vec=vec, mat=mat, n_probes=n_probes, width=width, nu=nu, probe_point=probe_point,
-                           solve_dense=solve_dense, update=update, begin=begin, fd_step=fd_step)
+
+@functools.cache
+def make_newton(dtype, nu: int, central: bool):
+    """central: Jacobian by central differences (2 nu probes) instead of forward (nu). With
+    forward differences the residual table has one more column: the trial point evaluated like
+    the probes, the base of their differences when the probes are a cheaper approximation of the
+    problem (``update(..., coarse=1)``)."""
+    st = make_newton_state(dtype, nu)
+    pr = make_probes(dtype, nu, central)
+    n_probes, width = probe_counts(nu, central)
+    return SimpleNamespace(Newton=st.Newton, vec=st.vec, mat=st.mat, n_probes=n_probes, width=width, nu=nu,
+                           probe_point=pr.probe_point, solve_dense=make_dense_solve(dtype, nu).solve_dense,
+                           update=make_update(dtype, nu, central).update, begin=st.begin, fd_step=pr.fd_step)
