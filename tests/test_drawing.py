@@ -162,14 +162,73 @@ def test_control_figures_show_the_limit_the_surface_and_time(captured, tmp_path)
     assert len([c for c in surface.get_children() if type(c).__name__ == "Annotation"]) == 3  # time's arrows
 
 
-def test_workspace_side_view_spans_its_data(captured, tmp_path):
+def test_workspace_views_in_mm_with_the_models_gap(captured, tmp_path):
     from tdcr_warp.io.plotting import plot_workspace
     rng = np.random.default_rng(0)
     tips = np.c_[rng.uniform(-0.06, 0.06, (500, 2)), 0.497 + 0.003 * rng.random(500)]
-    plot_workspace(tips, rng.random(500), tips + 1e-4, [], tmp_path)
+    plot_workspace(tips, rng.random(500), tips + [0.0, 0.0, 2e-6], [], tmp_path)
     fig = captured["workspace.png"]
     side = next(a for a in fig.axes if a.get_title().startswith("side"))
     lo, hi = side.get_ylim()
-    assert hi - lo < 0.004  # the 3 mm of z, not the 120 mm of x
+    assert hi - lo < 4.0 and side.get_ylabel() == "z [mm]"  # the 3 mm of z, not the 120 mm of x
     top = next(a for a in fig.axes if a.get_title().startswith("top"))
-    assert top.get_aspect() == 1.0
+    assert top.get_aspect() == 1.0 and np.diff(top.get_xlim())[0] > 110  # mm
+    gap = next(a for a in fig.axes if "models" in a.get_title())
+    assert "at most 2 µm apart" in gap.get_title()
+    assert np.allclose(gap.collections[0].get_offsets()[:, 1], 2.0)  # µm
+    ax3 = next(a for a in fig.axes if a.name == "3d")
+    box = np.asarray(ax3.get_box_aspect())
+    assert np.isclose(box[0] / box[1], 1.0, rtol=0.05) and box[2] / box[0] == pytest.approx(0.5, rel=0.05)
+    assert "z stretched x20" in ax3.get_title()  # 0.5 x 120 mm box height for 3 mm of z
+
+
+def test_montecarlo_histogram_percentiles_and_equal_top_view(captured, tmp_path):
+    from tdcr_warp.apps.jobs import ERROR_EDGES, Histogram
+    from tdcr_warp.io.plotting import plot_montecarlo
+    rng = np.random.default_rng(1)
+    tips = np.c_[0.026 + 0.002 * rng.standard_normal(400), np.zeros(400), 0.499 + 1e-4 * rng.standard_normal(400)]
+    nominal = np.array([0.026, 0.0, 0.499])
+    h = Histogram(ERROR_EDGES)
+    h.add(np.linalg.norm(tips - nominal, axis=1))
+    plot_montecarlo(tips, nominal, h, tips.mean(axis=0), np.cov(tips.T), tmp_path)
+    hist, top, side = captured["montecarlo.png"].axes
+    lines = {ln.get_label().split(":")[0]: ln.get_xdata()[0] for ln in hist.lines}
+    assert lines["median"] == pytest.approx(h.percentile(50) * 1e3) and "95th percentile" in lines
+    bars = hist.patches[0]  # one stairs patch: about 20 bins a decade, not 200
+    assert len(bars.get_path().vertices) < 200
+    assert top.get_aspect() == 1.0 and top.get_xlabel() == "x [mm]" and "stretched" in side.get_title()
+    assert any("sigma" in t.get_text() for t in top.get_legend().get_texts())
+
+
+def test_gain_grid_marks_the_fastest_cell(captured, tmp_path):
+    from tdcr_warp.io.plotting import plot_gain_grid
+    cells = {(c, k): np.array([np.nan if c == k == 5.0 else 1.0 / (c + k), 1e-3 / c, 1e-9 * k])
+             for c in (5.0, 10.0, 20.0) for k in (5.0, 10.0)}
+    st = np.array([0.2, np.inf, 0.3])
+    plot_gain_grid(cells, ("control.gain_c", "control.gain_k"), (st, np.array([1e-9, 1e-6, 1e-8])),
+                   (np.array([0.2]), np.array([1e-9])), tmp_path)
+    fig = captured["gain_grid.png"]
+    settle, error, chatter, runs = fig.axes[:4]
+    for ax in (settle, error, chatter):
+        star = next(ln for ln in ax.lines if ln.get_gid() == "best")
+        assert (star.get_xdata()[0], star.get_ydata()[0]) == (2.5, 1.5)  # c = 20, k = 10: the shortest settling
+    assert error.get_title() == "final error [mm]" and error.images[0].norm.vmax == pytest.approx(1e-3 / 5 * 1e3)
+    assert type(chatter.images[0].norm).__name__ == "LogNorm" and runs.get_yscale() == "log"
+    assert "2 settled of 3" in runs.get_legend().get_texts()[0].get_text()
+
+
+def test_prediction_figure_on_one_scale(captured, tmp_path):
+    from tdcr_warp.io.plotting import plot_prediction
+    rng = np.random.default_rng(2)
+    measured = np.c_[rng.uniform(-150, 150, (300, 2)), rng.uniform(40, 180, 300)]
+    predicted = measured + rng.normal(0, 2.0, (300, 3))
+    ok = np.ones(300, bool)
+    ok[7] = False
+    plot_prediction(measured, predicted, ok, tmp_path / "predict.png")
+    fig = captured["predict.png"]
+    ax3 = fig.axes[0]
+    box = np.asarray(ax3.get_box_aspect())
+    spans = np.array([np.diff(lim)[0] for lim in (ax3.get_xlim(), ax3.get_ylim(), ax3.get_zlim())])
+    assert np.allclose(box / box.max(), spans / spans.max(), rtol=0.1)  # one scale: z not stretched to a cube
+    rmse = np.sqrt(np.mean(np.sum((predicted - measured)[ok] ** 2, axis=1)))
+    assert f"299 of 300 rows converged: RMSE {rmse:.2f} mm" in fig.get_suptitle()

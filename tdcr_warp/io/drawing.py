@@ -20,7 +20,7 @@ import numpy as np
 from tdcr_warp.model.robot import InputError, Robot
 
 __all__ = ["AXIS_COLOURS", "DISK_COLOUR", "DISPLAY_KEYS", "ROD_COLOURS", "TENSION_SCALE", "RobotGeometry",
-           "display_options", "rod_colours", "robot_geometry"]
+           "display_options", "robot_geometry", "rod_colours"]
 
 DISPLAY_KEYS = {"disks", "disk_radius"}
 DEFAULT_DISKS = 20

@@ -275,7 +275,8 @@ def plot_control(run, out_dir: Path, tension_max=None, gain_c=None) -> None:
     """The report's control figures: tip displacement; tension history with its mean and the
     tension limit ``tension_max`` (B, K) [N] (and the commanded motor displacements, if any);
     error norm and the phase portraits x vs x_t and e vs e_t (x components, start o, end x, arrows
-    in time's direction) with the sliding surface S = e_t + C e = 0 of ``gain_c`` (B, 3) [1/s] (at most ``MAX_RODS_DRAWN`` rods)."""
+    in time's direction) with the sliding surface S = e_t + C e = 0 of ``gain_c`` (B, 3) [1/s]
+    (at most ``MAX_RODS_DRAWN`` rods)."""
     nb = min(run.tip_position.shape[1], MAX_RODS_DRAWN)
     t = run.time
     desired = (run.tip_position + run.error)[:, :nb]  # the target, or the desired path, over time
@@ -356,122 +357,231 @@ def _ellipse(mean2: np.ndarray, cov2: np.ndarray, k: float) -> np.ndarray:
     return mean2[:, None] + V @ (k * np.sqrt(np.maximum(w, 0))[:, None] * np.stack([np.cos(t), np.sin(t)]))
 
 
+def _coarse_histogram(hist, per_decade: int = 20) -> tuple[np.ndarray, np.ndarray]:
+    """Counts and edges of ``hist`` (jobs.Histogram of log-spaced bins) over its used bins,
+    merged into about ``per_decade`` bins a decade (a readable histogram of a few thousand values);
+    the last edge at the largest value."""
+    used = np.flatnonzero(hist.counts)
+    lo, hi = used[0], used[-1] + 1
+    counts, edges = hist.counts[lo:hi], hist.edges[lo:hi + 1]
+    step = max(1, round(np.log(10.0) / np.log(hist.edges[-1] / hist.edges[-2]) / per_decade))
+    starts = np.arange(0, len(counts), step)
+    return np.add.reduceat(counts, starts), np.append(edges[starts], min(edges[-1], max(hist.max, edges[0])))
+
+
+def _deviation_panel(ax, err_hist, rods: int) -> None:
+    """The histogram of the tips' distance from the nominal tip (log x) with its median and 95th percentile."""
+    counts, edges = _coarse_histogram(err_hist)
+    ax.stairs(counts, edges * 1e3, fill=True, color="C0", alpha=0.8)
+    if edges[0] > 0:
+        ax.set_xscale("log")
+    for p, ls in ((50, "-"), (95, "--")):
+        v = err_hist.percentile(p) * 1e3
+        ax.axvline(v, color="k", ls=ls, lw=1, label=f"{'median' if p == 50 else f'{p}th percentile'}: {v:.2g} mm")
+    ax.set_xlabel("|tip - nominal tip| [mm]")
+    ax.set_ylabel("rods per bin (20 bins a decade)")
+    ax.set_title(f"tip deviation ({rods:,} rods)")
+    ax.legend(fontsize=8, loc="upper left")
+    ax.grid(True, alpha=0.3)
+
+
 def plot_montecarlo(tips: np.ndarray, nominal: np.ndarray, err_hist, mean: np.ndarray, cov: np.ndarray | None,
                     out_dir: Path) -> None:
     """Histogram of the tip deviation from the nominal tip (``err_hist``: jobs.Histogram of
-    every rod), and tip scatter (x-y, x-z; ``tips``: an evenly spaced subset of the rods) with
+    every rod; median and 95th percentile marked), and the tips from above (x-y, equal axes) and
+    from the side (x-z, z stretched) in mm (``tips``: an evenly spaced subset of the rods) with
     1, 2, 3 sigma confidence ellipses of all rods' ``mean`` and ``cov``."""
-    fig, axes = plt.subplots(1, 3, figsize=(14, 4.2))
-    used = np.flatnonzero(err_hist.counts)
-    lo, hi = used[0], used[-1] + 1
-    edges = err_hist.edges[lo:hi + 1]
-    axes[0].stairs(err_hist.counts[lo:hi], np.minimum(edges, max(err_hist.max, edges[0])) * 1e3, fill=True, color="C0")
-    axes[0].set_xlabel("|tip - nominal tip| [mm]")
-    axes[0].set_ylabel("rods per bin (200 bins a decade)")
-    if edges[0] > 0:
-        axes[0].set_xscale("log")
-    for ax, (i, j) in zip(axes[1:], ((0, 1), (0, 2))):
-        ax.scatter(tips[:, i] * 1e3, tips[:, j] * 1e3, s=2, alpha=0.3)
+    fig, axes = plt.subplots(1, 3, figsize=(14, 4.6), layout="constrained")
+    _deviation_panel(axes[0], err_hist, int(err_hist.counts.sum()))
+    for ax, (i, j), title in zip(axes[1:], ((0, 1), (0, 2)), ("tips from above (x-y, equal axes)",
+                                                            "tips from the side (x-z, z stretched)")):
+        ax.scatter(tips[:, i] * 1e3, tips[:, j] * 1e3, s=6, alpha=0.5, color="C0", lw=0,
+                   label=f"tips ({len(tips):,} drawn)")
         if cov is not None:
+            sd = np.sqrt(np.maximum(np.diag(cov), 0.0)) * 1e3
             for k in (1, 2, 3):
                 e = _ellipse(mean[[i, j]], cov[np.ix_([i, j], [i, j])], k)
-                ax.plot(e[0] * 1e3, e[1] * 1e3, "k-", lw=0.8)
-        ax.plot(nominal[i] * 1e3, nominal[j] * 1e3, "r+", ms=12, label="nominal")
+                ax.plot(e[0] * 1e3, e[1] * 1e3, color="0.25", lw=0.7, label=(
+                    f"1, 2, 3 sigma (sigma {'xyz'[i]} {sd[i]:.2g}, {'xyz'[j]} {sd[j]:.2g} mm)") if k == 1 else None)
+        ax.plot(nominal[i] * 1e3, nominal[j] * 1e3, "r+", ms=14, mew=2, label="nominal tip")
+        if j == 1:
+            ax.set_aspect("equal", adjustable="datalim")
         ax.set_xlabel(f"{'xyz'[i]} [mm]")
         ax.set_ylabel(f"{'xyz'[j]} [mm]")
-        ax.legend()
+        ax.set_title(title)
+        ax.legend(fontsize=8, markerscale=2)
         ax.grid(True, alpha=0.3)
-    fig.tight_layout()
     _save(fig, out_dir / "montecarlo.png")
 
 
+def _workspace_3d(fig, spec, tips: np.ndarray, tau: np.ndarray, norm):
+    """The tip cloud [mm] in 3D, the box twice as wide as tall (z stretched; the factor in the title)."""
+    from matplotlib.ticker import MaxNLocator
+
+    ax = fig.add_subplot(spec, projection="3d")
+    sc = ax.scatter(*tips.T, c=tau, s=2, cmap="viridis", norm=norm, depthshade=False)
+    span = np.maximum(np.ptp(tips, axis=0), 1e-9)
+    box = np.array([span[0], span[1], 0.5 * max(span[0], span[1])])
+    ax.set_box_aspect(box, zoom=0.8)  # room for the z label inside the panel
+    ax.set_xlabel("x [mm]")
+    ax.set_ylabel("y [mm]")
+    ax.zaxis.set_major_locator(MaxNLocator(4))
+    ax.set_zlabel("z [mm]", labelpad=2)
+    ax.set_title(f"3D (z stretched x{box[2] / span[2] * span[0] / box[0]:.0f})")
+    return sc
+
+
 def plot_workspace(tips: np.ndarray, total_tension: np.ndarray, cc: np.ndarray, boundary: list, out_dir: Path) -> None:
-    """Tip cloud: 3D, top (x-y, equal axes) and side (x-z, z scaled to its own extent: a workspace
-    is a thin bowl) views coloured by total tension, the convex hull per height slice, and the
-    constant-curvature prediction (grey) beside it."""
-    sub = slice(None, None, max(1, len(tips) // 30000))
-    fig = plt.figure(figsize=(16, 5), layout="constrained")
-    ax3 = fig.add_subplot(1, 3, 1, projection="3d")
-    sc = ax3.scatter(tips[sub, 0], tips[sub, 1], tips[sub, 2], c=total_tension[sub], s=1, cmap="viridis")
-    ax3.set_xlabel("x [m]")
-    ax3.set_ylabel("y [m]")
-    ax3.set_zlabel("z [m]")
-    both = np.concatenate([tips[sub], cc[sub]])
-    for k, (i, j, name) in enumerate(((0, 1, "top (x-y)"), (0, 2, "side (x-z), z exaggerated"))):
-        ax = fig.add_subplot(1, 3, k + 2)
-        ax.scatter(cc[sub, i], cc[sub, j], s=1, c="0.75", label="constant curvature")
-        ax.scatter(tips[sub, i], tips[sub, j], s=1, c=total_tension[sub], cmap="viridis", label="Cosserat")
-        if i == 0 and j == 1:
-            for sl in boundary:
-                h = np.array(sl["hull_xy"] + sl["hull_xy"][:1])
-                ax.plot(h[:, 0], h[:, 1], "k-", lw=0.6)
-            ax.set_aspect("equal", adjustable="datalim")
-        else:
-            lo, hi = both[:, j].min(), both[:, j].max()
-            pad = 0.05 * max(hi - lo, 1e-6)
-            ax.set_ylim(lo - pad, hi + pad)
-        ax.set_xlabel(f"{'xyz'[i]} [m]")
-        ax.set_ylabel(f"{'xyz'[j]} [m]")
-        ax.set_title(name)
-        ax.legend(markerscale=8, fontsize=8)
+    """The tip cloud [mm] coloured by total tension (where several tensions reach one tip, the
+    least is drawn on top): 3D, top (x-y, equal axes, the convex hull of each height slice) and
+    side (x-z, z stretched: a workspace is a thin bowl) views, the constant-curvature prediction
+    of the same tensions (grey) under the side view's tips, and the distance between the two
+    models [µm] against the tip's horizontal reach."""
+    from matplotlib.colors import Normalize
+
+    sub = np.arange(0, len(tips), max(1, len(tips) // 30000))
+    sub = sub[np.argsort(-total_tension[sub], kind="stable")]  # the least tension on top: the least that reaches a tip
+    t, c, tau = tips[sub] * 1e3, cc[sub] * 1e3, total_tension[sub]
+    norm = Normalize(float(tau.min()), float(tau.max()) if tau.max() > tau.min() else float(tau.min()) + 1.0)
+    fig = plt.figure(figsize=(17, 4.8), layout="constrained")
+    grid = fig.add_gridspec(1, 4, width_ratios=(1.35, 1, 1, 1))
+    sc = _workspace_3d(fig, grid[0], t, tau, norm)
+    top, side, dev = (fig.add_subplot(grid[k]) for k in (1, 2, 3))
+    top.scatter(t[:, 0], t[:, 1], c=tau, s=3, cmap="viridis", norm=norm)
+    for k, sl in enumerate(boundary):
+        h = np.array(sl["hull_xy"] + sl["hull_xy"][:1]) * 1e3
+        top.plot(h[:, 0], h[:, 1], "k-", lw=0.5, alpha=0.6, label="outline of each height slice" if k == 0 else None)
+    top.set_aspect("equal", adjustable="datalim")
+    top.set_title("top (x-y): where the tip reaches")
+    side.scatter(c[:, 0], c[:, 2], s=14, c="0.8", label="constant curvature")
+    side.scatter(t[:, 0], t[:, 2], s=3, c=tau, cmap="viridis", norm=norm, label="Cosserat (this model)")
+    side.set_title("side (x-z), z stretched")
+    for ax, j in ((top, 1), (side, 2)):
+        ax.set_xlabel("x [mm]")
+        ax.set_ylabel(f"{'xyz'[j]} [mm]")
+    gap = np.linalg.norm(t - c, axis=1) * 1e3  # [µm]
+    dev.scatter(np.linalg.norm(t[:, :2], axis=1), gap, s=3, c=tau, cmap="viridis", norm=norm)
+    dev.set_xlabel("horizontal reach sqrt(x^2 + y^2) [mm]")
+    dev.set_ylabel("|Cosserat - constant curvature| [µm]")
+    dev.set_title(f"the two models' tips (at most {gap.max():.3g} µm apart)")
+    for ax in (top, side, dev):
         ax.grid(True, alpha=0.3)
-    fig.colorbar(sc, ax=fig.axes[-1], label="total tension [N]", shrink=0.8)
+    for ax in (top, side) if boundary else (side,):
+        ax.legend(markerscale=3, fontsize=8, loc="lower right" if ax is top else "lower center")
+    fig.colorbar(sc, ax=dev, label="total tension [N]", shrink=0.9)
     _save(fig, out_dir / "workspace.png")
 
 
-def plot_gain_grid(cells: dict, fields: tuple, scatter: tuple, front: tuple, out_dir: Path) -> None:
-    """Heatmaps over the first two gain fields (``cells``: (a, b) -> the best settling time,
-    final error and chatter over the other fields) and settling time vs chatter (``scatter``:
-    a subset of the runs) with the Pareto ``front``."""
+def _cell_grid(cells: dict, m: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The first field's values (A,), the second's (C,) and metric ``m`` of every cell (C, A) (NaN where none)."""
     ua = np.unique([a for a, _ in cells])
     ub = np.unique([b for _, b in cells])
-    fig, axes = plt.subplots(1, 4, figsize=(18, 4.2))
-    for m, (ax, label) in enumerate(zip(axes[:3], ("settling time [s]", "final error [m]", "chatter index [N]"))):
-        grid = np.full((len(ub), len(ua)), np.nan)
-        for (a, b), vals in cells.items():
-            grid[np.searchsorted(ub, b), np.searchsorted(ua, a)] = vals[m]
-        im = ax.imshow(grid, origin="lower", aspect="auto", cmap="magma_r",
-                       extent=(0, len(ua), 0, len(ub)))
-        ax.set_xticks(np.arange(len(ua)) + 0.5, [f"{x:.3g}" for x in ua], rotation=90, fontsize=7)
-        ax.set_yticks(np.arange(len(ub)) + 0.5, [f"{y:.3g}" for y in ub], fontsize=7)
-        ax.set_xlabel(fields[0])
-        ax.set_ylabel(fields[1])
-        ax.set_title(label)
-        fig.colorbar(im, ax=ax)
+    grid = np.full((len(ub), len(ua)), np.nan)
+    for (a, b), vals in cells.items():
+        grid[np.searchsorted(ub, b), np.searchsorted(ua, a)] = vals[m]
+    return ua, ub, grid
+
+
+def _gain_heatmap(fig, ax, cells: dict, m: int, fields: tuple, best: tuple) -> None:
+    """Heatmap of metric ``m`` (0 settling time [s], 1 final error [mm], 2 chatter [N], the last
+    two on a log scale) over the first two gain fields; blank (hatched): no settled run; a star on
+    the ``best`` cell; settling times written in their cells."""
+    from matplotlib.colors import LogNorm, Normalize
+
+    ua, ub, grid = _cell_grid(cells, m)
+    grid = grid * (1e3 if m == 1 else 1.0)
+    finite = grid[np.isfinite(grid)]
+    positive = finite[finite > 0]
+    norm = (Normalize(finite.min(), finite.max()) if m == 0 or not positive.size
+            else LogNorm(positive.min(), positive.max()))
+    ax.add_patch(plt.Rectangle((0, 0), len(ua), len(ub), fill=False, hatch="//", color="0.8", lw=0, zorder=0))
+    im = ax.imshow(np.where(grid > 0, grid, np.nan) if m else grid, origin="lower", aspect="auto", cmap="magma_r",
+                   norm=norm, extent=(0, len(ua), 0, len(ub)), zorder=1)
+    if m == 0:
+        for (r, c), v in np.ndenumerate(grid):
+            if np.isfinite(v):
+                ax.text(c + 0.5, r + 0.5, f"{v:.2f}", ha="center", va="center", fontsize=6,
+                        color="w" if norm(v) > 0.6 else "k")
+    ax.plot(np.searchsorted(ua, best[0]) + 0.5, np.searchsorted(ub, best[1]) + 0.5, "*", ms=14, mfc="c", mec="k",
+            gid="best")
+    ax.set_xticks(np.arange(len(ua)) + 0.5, [f"{x:.3g}" for x in ua], fontsize=8)
+    ax.set_yticks(np.arange(len(ub)) + 0.5, [f"{y:.3g}" for y in ub], fontsize=8)
+    ax.set_xlabel(fields[0])
+    ax.set_ylabel(fields[1])
+    ax.set_title(("settling time [s] (hatched: never settled)", "final error [mm]", "chatter index [N]")[m])
+    fig.colorbar(im, ax=ax)
+
+
+def plot_gain_grid(cells: dict, fields: tuple, scatter: tuple, front: tuple, out_dir: Path) -> None:
+    """Heatmaps over the first two gain fields (``cells``: (a, b) -> the best settling time [s],
+    final error [m] and chatter [N] over the other fields), the fastest-settling cell starred, and
+    settling time vs chatter (``scatter``: a subset of the runs) with the Pareto ``front``."""
+    settle = {k: v[0] for k, v in cells.items() if np.isfinite(v[0])}
+    best = min(settle, key=lambda k: (settle[k], cells[k][2])) if settle else next(iter(cells))
+    fig, axes = plt.subplots(1, 4, figsize=(19, 4.6), layout="constrained")
+    for m in range(3):
+        _gain_heatmap(fig, axes[m], cells, m, fields, best)
     st, ch = scatter
-    axes[3].scatter(np.where(np.isfinite(st), st, np.nan), ch, s=4, alpha=0.4)
+    ok = np.isfinite(st) & (ch > 0)
+    ax = axes[3]
+    ax.scatter(st[ok], ch[ok], s=8, alpha=0.5, label=f"runs ({ok.sum()} settled of {len(st)} drawn)")
     if len(front[0]):
-        axes[3].plot(front[0], front[1], "r.-", label="Pareto front")
-        axes[3].legend()
-    axes[3].set_xlabel("settling time [s]")
-    axes[3].set_ylabel("chatter index [N]")
-    axes[3].set_yscale("symlog", linthresh=1e-6)
-    axes[3].grid(True, alpha=0.3)
-    fig.tight_layout()
+        ax.plot(front[0], front[1], "r.-", ms=8, label="Pareto front")
+    ax.set_xlabel("settling time [s]")
+    ax.set_ylabel("chatter index [N]")
+    ax.set_yscale("log")
+    ax.set_title("each run: settling time vs chatter")
+    ax.legend(fontsize=8)
+    ax.grid(True, alpha=0.3)
+    fig.suptitle("each cell: the best run over the other gain fields; star: the fastest-settling cell", fontsize=10)
     _save(fig, out_dir / "gain_grid.png")
 
 
 def plot_prediction(measured: np.ndarray, predicted: np.ndarray, converged: np.ndarray, path: Path) -> None:
-    """Measured against predicted tips (M, 3) [mm] in 3D, and the error per axis against row."""
-    fig = plt.figure(figsize=(12, 5))
-    ax3 = fig.add_subplot(1, 2, 1, projection="3d")
-    ok = converged
-    ax3.scatter(*measured[ok].T, s=4, color="C0", label="measured")
-    ax3.scatter(*predicted[ok].T, s=4, color="C1", label="predicted")
-    ax3.set_xlabel("x [mm]")
-    ax3.set_ylabel("y [mm]")
-    ax3.set_zlabel("z [mm]")
-    ax3.legend()
-    ax = fig.add_subplot(1, 2, 2)
+    """Measured against predicted tips (M, 3) [mm] of the converged rows: in 3D on one scale
+    (the box sized by the tips' extent), the error's length per row (its median over 25 rows,
+    the median and RMSE marked) and the histograms of its x, y, z components; the title: the
+    converged rows, RMSE and median."""
+    ok = np.asarray(converged, dtype=bool)
     err = np.where(ok[:, None], predicted - measured, np.nan)
-    for i, name in enumerate("xyz"):
-        ax.plot(err[:, i], lw=0.8, label=f"{name}")
-    ax.plot(np.linalg.norm(err, axis=1), color="k", lw=0.8, label="|error|")
-    ax.set_xlabel("row")
-    ax.set_ylabel("predicted - measured [mm]")
-    ax.legend()
+    size = np.linalg.norm(err, axis=1)
+    rmse, median = float(np.sqrt(np.nanmean(size ** 2))), float(np.nanmedian(size))
+    fig = plt.figure(figsize=(16, 5), layout="constrained")
+    grid = fig.add_gridspec(1, 3, width_ratios=(1.2, 1.3, 1))
+    ax3 = fig.add_subplot(grid[0], projection="3d")
+    ax3.scatter(*measured[ok].T, s=3, color="C0", label="measured", depthshade=False)
+    ax3.scatter(*predicted[ok].T, s=3, color="C1", label="predicted", depthshade=False)
+    ax3.set_box_aspect(np.ptp(np.concatenate([measured[ok], predicted[ok]]), axis=0), zoom=0.85)
+    from matplotlib.ticker import MaxNLocator
+    ax3.zaxis.set_major_locator(MaxNLocator(4))
+    for axis, name in ((ax3.set_xlabel, "x"), (ax3.set_ylabel, "y"), (ax3.set_zlabel, "z")):
+        axis(f"{name} [mm]")
+    ax3.set_title("tips (one scale on x, y, z)")
+    ax3.legend(markerscale=4, loc="upper left")
+    ax = fig.add_subplot(grid[1])
+    rows = np.arange(len(size))
+    ax.plot(rows, size, ".", ms=2, color="0.6", label="|predicted - measured| per row")
+    window = min(25, len(size))
+    run = np.array([np.nanmedian(size[max(0, i - window // 2):i + window // 2 + 1]) for i in rows])
+    ax.plot(rows, run, "k-", lw=1, label=f"its median over {window} rows")
+    ax.axhline(rmse, color="C3", ls="--", lw=1, label=f"RMSE {rmse:.2f} mm")
+    ax.axhline(median, color="C3", ls=":", lw=1, label=f"median {median:.2f} mm")
+    ax.set_xlabel("row of the data file")
+    ax.set_ylabel("tip error [mm]")
+    ax.set_title("tip error per row")
+    ax.legend(fontsize=8, loc="upper right")
     ax.grid(alpha=0.3)
-    fig.tight_layout()
+    ax = fig.add_subplot(grid[2])
+    bins = np.linspace(np.nanmin(err), np.nanmax(err), 60) if ok.any() else 10
+    for i, name in enumerate("xyz"):
+        e = err[ok, i]
+        ax.hist(e, bins=bins, histtype="step", lw=1.2, label=f"{name}: mean {e.mean():+.2f}, sd {e.std():.2f} mm")
+    ax.set_xlabel("predicted - measured [mm]")
+    ax.set_ylabel("rows per bin")
+    ax.set_title("error components")
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3)
+    fig.suptitle(f"{ok.sum()} of {len(ok)} rows converged: RMSE {rmse:.2f} mm, median {median:.2f} mm")
     _save(fig, path)
 
 

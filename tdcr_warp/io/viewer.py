@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tdcr_warp.io.drawing import AXIS_COLOURS, TENSION_SCALE, RobotGeometry, rod_colours, robot_geometry
+from tdcr_warp.io.drawing import AXIS_COLOURS, TENSION_SCALE, RobotGeometry, robot_geometry, rod_colours
 from tdcr_warp.model.robot import InputError, Robot
 
 __all__ = ["MAX_FRAMES", "MAX_RODS", "find_browser", "frame_indices", "robot_figure", "screenshot", "shape_tensions",
