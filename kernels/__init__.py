@@ -1,1 +1,33 @@
-"""Warp kernels of tdcr-warp. Imported as ``tdcr_warp.kernels``; imports only warp and siblings."""
+"""Warp kernels of tdcr-warp. Imported as ``tdcr_warp.kernels``; imports only warp and siblings.
+
+Each physics term is a named ``@wp.func``, built by a cached factory (``make_*``) of its
+family's file and keyed only by what it needs; a feature a scene lacks compiles out
+(``wp.static``). Where each term lives:
+
+  term                                           file
+  ---------------------------------------------  ----------------------------------------------
+  Model, Control, Step; row, rvec, dvec,         structs.py    (packed tables: layout.py)
+    term_node; the slots of the BDF history
+  body_strains, strains, store_slot              strains.py    constitutive law (with strain damping)
+  tendon_route, tendon_tangent                   tendons.py    tendon routing
+  coupled_tendon_load                            tendons.py    distributed tendon load (coupled model)
+  tendon_end_loads, kink_loads                   tendons.py    tendon point loads at a node
+  tendon_rates                                   tendons.py    tendon states E and the friction load
+  base_tensions, length_residuals                tendons.py    displacement control
+  tensions, tension_of, blend                    friction.py   capstan friction, stick-slip
+  slip_state, store_profile, store_node_profile  friction.py   the tension profile a step keeps
+  inertia_loads                                  inertia.py    inertia and drag (dynamics)
+  damped_system                                  inertia.py    strain-rate damping in the (v', u') system
+  kirchhoff_solve, cosserat_solve,               rod.py        (v', u') and the tendon load
+    coupled_rates, point_rates
+  rhs, node_busy, node_jumps                     rod.py        d/ds of the state; the jumps at a node
+  stage_c, stage_w, orthonormalize, orth_error   integration.py  explicit Runge-Kutta, R a rotation
+  interval, shoot, tip_residual, Nodes           integration.py  base to tip: the shooting residual
+  Newton, begin, update, solve_dense, ...        newton.py     damped (quasi-)Newton per rod
+  solve / probe / update / finish / begin /      drivers.py    the Warp kernels (one module per
+    evaluate kernels                                           variant and driver)
+  make_shooting_kernels                          shooting.py   one variant's kernels, for the host
+  end_step                                       history.py    BDF-alpha history between steps
+
+Contact is not modelled.
+"""

@@ -1,0 +1,331 @@
+"""Integration of the rod ODE from base to tip: the shooting residual of a trial point.
+
+  stage_c / stage_w    where an explicit Runge-Kutta stage is evaluated and its weight
+  orthonormalize       one Newton-Schulz step of R toward the nearest rotation
+  interval             one integration step over an interval (all of its stages)
+  shoot                base to tip from the unknowns x: the residual and the tip pose
+  tip_residual         the scaled residual at the tip (and of the displaced tendons)
+  Nodes, store_node    the shape a solve keeps: the state at every node
+  store_tensions, store_end_tensions, store_tendon_outputs   what it keeps of the tendons
+
+Unknowns per rod, scaled to O(1): x = [n(0) L^2 / EI, m(0) L / EI] (+ one tension per
+displacement-controlled tendon). Residual, scaled the same way: r = [(n(L+) - F_tip) L^2 / EI,
+(m(L+) - L_tip) L / EI], so ``L |r|`` is a tip-displacement-like error in metres.
+"""
+
+import functools
+from types import SimpleNamespace
+
+import warp as wp
+
+from .friction import make_tensions
+from .layout import (
+    FORCE_SCALE,
+    LENGTH,
+    MOMENT_SCALE,
+    TIP_F,
+    TIP_M,
+    TO_BASE,
+    TO_END,
+    TO_FREE,
+    TO_PATH,
+    TO_TURN,
+)
+from .rod import Features, make_rod_funcs
+from .structs import make_rows, make_structs, tendon_vectors
+from .tendons import make_displacement
+
+STAGES = {"euler": 1, "midpoint": 2, "rk4": 4}
+INTEGRATORS = tuple(STAGES)
+N_BASE = 6  # n(0), m(0); + one tension per displacement-controlled tendon
+
+
+@functools.cache
+def make_stages(dtype, integrator: str):
+    """The explicit Runge-Kutta scheme (Euler, midpoint, RK4), and keeping R a rotation."""
+    zero = dtype(0.0)
+    half = dtype(0.5)
+    sixth = dtype(1.0 / 6.0)
+    third = dtype(1.0 / 3.0)  # from Python: a literal inside a kernel would be float32
+    mat33 = wp.types.matrix((3, 3), dtype)
+    rk4 = integrator == "rk4"
+    midpoint = integrator == "midpoint"
+
+    @wp.func
+    def stage_c(st: int):
+        """Where stage st is evaluated, as a fraction of the interval."""
+        if wp.static(rk4):
+            return wp.where(st == 0, zero, wp.where(st == 3, dtype(1.0), half))
+        if wp.static(midpoint):
+            return wp.where(st == 0, zero, half)
+        return zero
+
+    @wp.func
+    def stage_w(st: int):
+        """The weight of stage st (RK4: 1/6, 1/3, 1/3, 1/6; midpoint: 0, 1; Euler: 1)."""
+        if wp.static(rk4):
+            return wp.where(st == 0 or st == 3, sixth, third)
+        if wp.static(midpoint):
+            return wp.where(st == 0, zero, dtype(1.0))
+        return dtype(1.0)
+
+    @wp.func
+    def orthonormalize(R: mat33):
+        """One Newton-Schulz step towards the nearest rotation: squares the drift."""
+        return dtype(1.5) * R - dtype(0.5) * (R * (wp.transpose(R) * R))
+
+    @wp.func
+    def orth_error(R: mat33, orth: dtype):
+        """max(orth, max |R^T R - I|)."""
+        dev = wp.transpose(R) * R - wp.identity(3, dtype)
+        for i in range(3):
+            for j in range(3):
+                orth = wp.max(orth, wp.abs(dev[i, j]))
+        return orth
+
+    return SimpleNamespace(stage_c=stage_c, stage_w=stage_w, orthonormalize=orthonormalize, orth_error=orth_error)
+
+
+@functools.cache
+def make_nodes(dtype, dynamic: bool, tstate: bool):
+    """The kernel ``Nodes``: the state at the nodes of the last trial point (State.nodes)."""
+    vec3 = wp.types.vector(3, dtype)
+    mat33 = wp.types.matrix((3, 3), dtype)
+
+    @wp.struct
+    class Nodes:
+        """The state at the nodes of the last trial point, (B, N+1) each (State.nodes)."""
+
+        p: wp.array2d(dtype=vec3)
+        R: wp.array2d(dtype=mat33)
+        n: wp.array2d(dtype=vec3)
+        m: wp.array2d(dtype=vec3)
+        orth: wp.array(dtype=dtype)  # max |R^T R - I| over the nodes
+        if tstate:
+            tend: wp.array3d(dtype=dtype)  # (B, K, TO_WIDTH) per tendon (kernels/layout.py)
+            taun: wp.array3d(dtype=dtype)  # (B, N+1, K) tension just distal of every node [N]
+        if dynamic:
+            q: wp.array2d(dtype=vec3)
+            w: wp.array2d(dtype=vec3)
+
+    @wp.func
+    def store_node(out: Nodes, b: int, k: int, p: vec3, R: mat33, n: vec3, m: vec3, q: vec3, w: vec3):
+        out.p[b, k] = p
+        out.R[b, k] = R
+        out.n[b, k] = n
+        out.m[b, k] = m
+        if wp.static(dynamic):
+            out.q[b, k] = q
+            out.w[b, k] = w
+
+    return SimpleNamespace(Nodes=Nodes, store_node=store_node)
+
+
+@functools.cache
+def make_tendon_outputs(dtype, dynamic: bool, tendons: int, friction: bool):
+    """What a solve keeps of the tendons (tendon states only): tensions at the nodes, at each
+    tendon's end and at the motor, path lengths and turning (``Nodes.taun``, ``Nodes.tend``)."""
+    zero = dtype(0.0)
+    K = tendons
+    kvec, evec = tendon_vectors(dtype, K)
+    st = make_structs(dtype, dynamic)
+    Model, Control = st.Model, st.Control
+    Nodes = make_nodes(dtype, dynamic, K > 0).Nodes
+    tensions = make_tensions(dtype, dynamic, K, friction).tensions
+    term_node = make_rows(dtype, dynamic).term_node
+
+    @wp.func
+    def store_tensions(md: Model, ct: Control, b: int, out: Nodes, t0: kvec, E: evec, node: int, slot: int):
+        """The tensions just distal of ``node`` (store pass, tendon states only; ``slot``: an
+        evaluation there, whose remembered tension a stick-slip solve reads)."""
+        if wp.static(K > 0):
+            tau, g, h = tensions(md, ct, b, t0, E, slot, zero, zero)
+            for k in range(md.n_tendons):
+                out.taun[b, node, k] = tau[k]
+
+    @wp.func
+    def store_end_tensions(md: Model, ct: Control, b: int, out: Nodes, t0: kvec, E: evec, node: int, slot: int):
+        """The tension of each tendon ending at ``node``, just before its end."""
+        if wp.static(K > 0):
+            tau, g, h = tensions(md, ct, b, t0, E, slot, zero, zero)
+            for k in range(md.n_tendons):
+                if term_node(md, b, k) == node:
+                    out.tend[b, k, TO_END] = tau[k]
+
+    @wp.func
+    def store_tendon_outputs(md: Model, b: int, out: Nodes, t0: kvec, E: evec):
+        """Per tendon at the tip: the tension at the motor, the path's length, unstretched
+        length and turning."""
+        if wp.static(K > 0):
+            for kk in range(md.n_tendons):
+                out.tend[b, kk, TO_BASE] = t0[kk]
+                out.tend[b, kk, TO_PATH] = E[K + kk]
+                out.tend[b, kk, TO_FREE] = E[2 * K + kk]
+                out.tend[b, kk, TO_TURN] = E[kk]
+
+    return SimpleNamespace(store_tensions=store_tensions, store_end_tensions=store_end_tensions,
+                           store_tendon_outputs=store_tendon_outputs)
+
+
+@functools.cache
+def make_residual(dtype, dynamic: bool, tendons: int, displaced: int):
+    """The scaled shooting residual at the tip, and its scale to a length."""
+    vec3 = wp.types.vector(3, dtype)
+    evec = tendon_vectors(dtype, tendons)[1]
+    uvec = wp.types.vector(N_BASE + displaced, dtype)
+    st = make_structs(dtype, dynamic)
+    Model, Control = st.Model, st.Control
+    rows = make_rows(dtype, dynamic)
+    length_residuals = make_displacement(dtype, dynamic, tendons, displaced).length_residuals
+
+    @wp.func
+    def tip_residual(md: Model, ct: Control, b: int, x: uvec, n: vec3, m: vec3, E: evec):
+        """r = [(n(L+) - F_tip) / FORCE_SCALE, (m(L+) - L_tip) / MOMENT_SCALE] and the length
+        residuals of the displaced tendons."""
+        fs = md.rod[rows.row(b, md.rod), FORCE_SCALE]
+        ms = md.rod[rows.row(b, md.rod), MOMENT_SCALE]
+        rn = (n - rows.rvec(md, b, TIP_F)) / fs
+        rm = (m - rows.rvec(md, b, TIP_M)) / ms
+        res = uvec()
+        for i in range(3):
+            res[i] = rn[i]
+            res[3 + i] = rm[i]
+        return length_residuals(md, ct, b, x, E, res)
+
+    @wp.func
+    def residual_scale(md: Model, b: int):
+        """L: L |r| is the convergence measure [m]."""
+        return md.rod[rows.row(b, md.rod), LENGTH]
+
+    return SimpleNamespace(tip_residual=tip_residual, residual_scale=residual_scale)
+
+
+@functools.cache
+def make_interval(dtype, integrator: str, model: str, dynamic: bool, rod: str, features: Features):
+    """``interval``: one step of the integrator over an interval."""
+    vec3 = wp.types.vector(3, dtype)
+    mat33 = wp.types.matrix((3, 3), dtype)
+    K = features.tendons
+    kvec, evec = tendon_vectors(dtype, K)
+    st = make_structs(dtype, dynamic)
+    Model, Control, Step = st.Model, st.Control, st.Step
+    rf = make_rod_funcs(dtype, model, dynamic, rod, features)
+    sc = make_stages(dtype, integrator)
+    stages = STAGES[integrator]
+
+    @wp.func
+    def interval(md: Model, ct: Control, sp: Step, b: int, s: dtype, h: dtype, p: vec3, R: mat33, n: vec3, m: vec3,
+                 q: vec3, w: vec3, t0: kvec, E: evec, k: int, store: int):
+        """The state at s + h from the state at s, the start of interval k: explicit stages, each
+        from the last, y_i = y + c_i h k_(i-1), y <- y + h sum_i w_i k_i, then R orthonormalized.
+        A runtime stage count keeps one call site of the right-hand side (compile time)."""
+        sl = k * stages
+        Ap = vec3()
+        AR = mat33()
+        An = vec3()
+        Am = vec3()
+        Aq = vec3()
+        Aw = vec3()
+        AE = evec()
+        kE = evec()
+        kp = vec3()
+        kR = mat33()
+        kn = vec3()
+        km = vec3()
+        kq = vec3()
+        kw = vec3()
+        for st in range(stages + 0 * k):
+            ch = sc.stage_c(st) * h
+            kp, kR, kn, km, kq, kw, kE = rf.rhs(md, ct, sp, b, s + ch, p + ch * kp, R + ch * kR, n + ch * kn,
+                                                m + ch * km, q + ch * kq, w + ch * kw, t0, E + ch * kE, k,
+                                                sl + st, store)
+            wt = sc.stage_w(st)
+            Ap += wt * kp
+            AR += wt * kR
+            An += wt * kn
+            Am += wt * km
+            if wp.static(dynamic):
+                Aq += wt * kq
+                Aw += wt * kw
+            if wp.static(K > 0):
+                AE += wt * kE
+        p = p + h * Ap
+        R = R + h * AR
+        n = n + h * An
+        m = m + h * Am
+        if wp.static(dynamic):
+            q = q + h * Aq
+            w = w + h * Aw
+        if wp.static(K > 0):
+            E = E + h * AE
+        return p, sc.orthonormalize(R), n, m, q, w, E
+
+    return SimpleNamespace(interval=interval)
+
+
+@functools.cache
+def make_shoot(dtype, integrator: str, model: str, dynamic: bool, rod: str, features: Features):
+    """``shoot``: the residual of a trial point; ``residual_scale``: its scale to a length."""
+    vec3 = wp.types.vector(3, dtype)
+    zero = dtype(0.0)
+    K = features.tendons
+    evec = tendon_vectors(dtype, K)[1]
+    uvec = wp.types.vector(N_BASE + features.displaced, dtype)
+    st = make_structs(dtype, dynamic)
+    Model, Control, Step = st.Model, st.Control, st.Step
+    rf = make_rod_funcs(dtype, model, dynamic, rod, features)
+    nodes = make_nodes(dtype, dynamic, K > 0)
+    Nodes, store_node = nodes.Nodes, nodes.store_node
+    tout = make_tendon_outputs(dtype, dynamic, K, features.friction)
+    interval = make_interval(dtype, integrator, model, dynamic, rod, features).interval
+    orth_error = make_stages(dtype, integrator).orth_error
+    resid = make_residual(dtype, dynamic, K, features.displaced)
+    stages = STAGES[integrator]
+
+    @wp.func
+    def shoot(x: uvec, md: Model, ct: Control, sp: Step, b: int, store: int, coarse: int, out: Nodes):
+        """Integrate base to tip from the scaled unknowns x; return the scaled residual and the
+        tip's position and orientation.
+        coarse = 1 (statics, never with store): steps over two intervals wherever no load sits
+        on the node between them, about half the work (the probes of a first Jacobian)."""
+        p = vec3()
+        R = wp.identity(3, dtype)
+        n = vec3(x[0], x[1], x[2]) * md.rod[rf.row(b, md.rod), FORCE_SCALE]
+        m = vec3(x[3], x[4], x[5]) * md.rod[rf.row(b, md.rod), MOMENT_SCALE]
+        q = vec3()
+        w = vec3()
+        t0 = rf.base_tensions(md, ct, b, x)
+        E = evec()
+        ig = rf.row(b, md.grid)
+        n_int = md.grid.shape[1] - 1
+        jslot = n_int * stages  # first of the two slots per node used by the jumps
+        orth = zero
+        if store != 0:
+            store_node(out, b, 0, p, R, n, m, q, w)
+        n, m, E = rf.node_jumps(md, ct, sp, b, zero, R, n, m, q, w, t0, E, 0, jslot, jslot + 1, store)
+        if store != 0:
+            tout.store_tensions(md, ct, b, out, t0, E, 0, 0)
+        k = int(0)
+        while k < n_int:
+            k1 = k + 1
+            if coarse != 0 and k + 2 <= n_int:
+                if rf.node_busy(md, b, k1) == 0:
+                    k1 = k + 2
+            s = md.grid[ig, k]
+            p, R, n, m, q, w, E = interval(md, ct, sp, b, s, md.grid[ig, k1] - s, p, R, n, m, q, w, t0, E, k, store)
+            if store != 0:
+                store_node(out, b, k1, p, R, n, m, q, w)
+                orth = orth_error(R, orth)
+            js = jslot + 2 * k1
+            if store != 0:
+                tout.store_end_tensions(md, ct, b, out, t0, E, k1, js)
+            n, m, E = rf.node_jumps(md, ct, sp, b, md.grid[ig, k1], R, n, m, q, w, t0, E, k1, js, js + 1, store)
+            if store != 0:  # the first stage of the next interval is just distal of node k1
+                tout.store_tensions(md, ct, b, out, t0, E, k1, wp.where(k1 < n_int, k1 * stages, js + 1))
+            k = k1
+        if store != 0:
+            out.orth[b] = orth
+            tout.store_tendon_outputs(md, b, out, t0, E)
+        return resid.tip_residual(md, ct, b, x, n, m, E), p, R
+
+    return SimpleNamespace(shoot=shoot, residual_scale=resid.residual_scale, Nodes=Nodes)
