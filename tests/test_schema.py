@@ -129,7 +129,7 @@ def test_an_undocumented_key_is_an_error_naming_it(table):
         scene_from_dict(d)
     message = str(info.value)
     assert "unknown key 'undocumented_key'" in message and "1.25" in message, message
-    heading = schema.where(table, len(_tables_of(d, table)) - 1 if SCHEMA[table].array else None)
+    heading = schema.location(table, len(_tables_of(d, table)) - 1 if SCHEMA[table].array else None)
     assert heading in message, message
 
 

@@ -29,7 +29,7 @@ from tdcr_warp.model.robot import (
     check_tensions,
     require_memory,
 )
-from tdcr_warp.model.schema import REQUIRED, SCHEMA, TOP_TABLES, Key, Table, where
+from tdcr_warp.model.schema import REQUIRED, SCHEMA, TOP_TABLES, Key, Table, location
 from tdcr_warp.model.tippath import path_from_table
 
 __all__ = ["DynamicsSpec", "Fields", "Scene", "load_scene", "scene_from_dict", "search_options"]
@@ -37,8 +37,8 @@ __all__ = ["DynamicsSpec", "Fields", "Scene", "load_scene", "scene_from_dict", "
 # the gains a search ranges over: control.<gain_c|gain_k|gain_i> (every component, or [c] one), epsilon, phi
 SEARCH_GAINS = re.compile(r"control\.(?:(?:gain_c|gain_k|gain_i)(?:\[[0-2]\])?|epsilon|phi)")
 MAX_DEPTH = 16  # tables and lists nested deeper than any scene needs (a handful) are refused
-SCENE = Table("scene", "the scene's tables", tuple(Key(name, "tables" if SCHEMA[name].array else "table", "-", "")
-                                                   for name in TOP_TABLES))
+SCENE = Table("scene", "A scene: its tables.", tuple(Key(name, "tables" if SCHEMA[name].array else "table", "-",
+                                                        SCHEMA[name].meaning) for name in TOP_TABLES))
 
 
 @dataclass(frozen=True)
@@ -159,10 +159,10 @@ def _show(value) -> str:
 
 class Fields:
     """One table of a scene (``raw``), read through its schema (``table``, kept as ``schema``;
-    errors name it ``where``).
-    Unknown keys, and keys without their selector (turns without routing = "helix"), are
-    InputErrors naming the table, the key and the value; reading a key the schema does not list
-    is a LookupError (a bug of the reader, never of the scene)."""
+    errors call it ``where``, e.g. "[[tendons]] #2"). Unknown keys, and keys without their
+    selector (turns without routing = "helix"), are InputErrors naming the table, the key and
+    the value; reading a key the schema does not list is a LookupError (a bug of the reader,
+    never of the scene)."""
 
     def __init__(self, raw: dict, table: Table, where: str):
         self.raw, self.schema, self.where = raw, table, where
@@ -173,7 +173,8 @@ class Fields:
         for key in table.keys:
             if key.when is not None and key.name in raw and not self._applies(key):
                 sel, values = key.when
-                raise InputError(f"{where}.{key.name} is only for {sel} = " + " or ".join(f'"{v}"' for v in values))
+                raise InputError(f"{where}.{key.name} is only for {sel} = " + " or ".join(f'"{v}"' for v in values)
+                                 + f" (here {sel} = {self.get(sel)!r}; {key.name} = {_show(raw[key.name])})")
 
     def _applies(self, key: Key) -> bool:
         return key.when is None or self.get(key.when[0]) in key.when[1]
@@ -211,8 +212,8 @@ class Fields:
                 raise InputError(f"missing table [{qual}]")
             return None
         if not isinstance(raw, dict):
-            raise InputError(f"{where(qual)} must be a table, got {_show(raw)}")
-        return Fields(raw, SCHEMA[qual], where(qual))
+            raise InputError(f"{location(qual)} must be a table, got {_show(raw)}")
+        return Fields(raw, SCHEMA[qual], location(qual))
 
     def tables(self, name: str) -> list[Fields]:
         """The array of tables ``name`` (e.g. [[tendons]]), each read through its schema."""
@@ -223,8 +224,8 @@ class Fields:
         out = []
         for i, t in enumerate(raw):
             if not isinstance(t, dict):
-                raise InputError(f"{where(qual, i)} must be a table, got {_show(t)}")
-            out.append(Fields(t, SCHEMA[qual], where(qual, i)))
+                raise InputError(f"{location(qual, i)} must be a table, got {_show(t)}")
+            out.append(Fields(t, SCHEMA[qual], location(qual, i)))
         return out
 
     def _child(self, name: str) -> str:

@@ -17,7 +17,7 @@ from __future__ import annotations
 import sys
 from dataclasses import dataclass
 
-__all__ = ["REQUIRED", "SCHEMA", "TOP_TABLES", "Key", "Table", "markdown", "where"]
+__all__ = ["REQUIRED", "SCHEMA", "TOP_TABLES", "Key", "Table", "location", "markdown"]
 
 TYPES = ("number", "numbers", "integer", "string", "bool", "strings", "table", "tables")
 
@@ -83,7 +83,7 @@ class Table:
         return f"[[{self.name}]]" if self.array else f"[{self.name}]"
 
 
-def where(name: str, index: int | None = None) -> str:
+def location(name: str, index: int | None = None) -> str:
     """How errors name a table: "[robot]", "[[tendons]] #2" (``index`` 1), "[control].path"."""
     if index is not None:
         return f"[[{name}]] #{index + 1}"
