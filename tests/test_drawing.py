@@ -215,6 +215,10 @@ def test_gain_grid_marks_the_fastest_cell(captured, tmp_path):
     assert error.get_title() == "final error [mm]" and error.images[0].norm.vmax == pytest.approx(1e-3 / 5 * 1e3)
     assert type(chatter.images[0].norm).__name__ == "LogNorm" and runs.get_yscale() == "log"
     assert "2 settled of 3" in runs.get_legend().get_texts()[0].get_text()
+    never = {k: np.array([np.nan, v[1], v[2]]) for k, v in cells.items()}  # no run settled: no star, no error
+    plot_gain_grid(never, ("control.gain_c", "control.gain_k"), (np.full(3, np.inf), np.ones(3)),
+                   (np.zeros(0), np.zeros(0)), tmp_path)
+    assert not any(ln.get_gid() == "best" for ln in captured["gain_grid.png"].axes[0].lines)
 
 
 def test_prediction_figure_on_one_scale(captured, tmp_path):
@@ -232,3 +236,16 @@ def test_prediction_figure_on_one_scale(captured, tmp_path):
     assert np.allclose(box / box.max(), spans / spans.max(), rtol=0.1)  # one scale: z not stretched to a cube
     rmse = np.sqrt(np.mean(np.sum((predicted - measured)[ok] ** 2, axis=1)))
     assert f"299 of 300 rows converged: RMSE {rmse:.2f} mm" in fig.get_suptitle()
+
+
+def test_search_figure_titles_the_unsettled_band(captured, tmp_path):
+    from tdcr_warp.io.plotting import plot_search
+    history = [{"closed_loops": 16 * g, "best_objective": 0.2 - 0.01 * g} for g in range(1, 5)]
+    loops = np.repeat([16, 32, 48, 64], 4)
+    plot_search(history, (loops, np.linspace(0.16, 1.5, 16)), (0.16, 1000), 1.005, tmp_path / "search.png")
+    ax = captured["search.png"].axes[0]
+    assert "grid" in ax.get_title() and ax.get_xscale() == ax.get_yscale() == "log"
+    band = next(p for p in ax.patches if p.get_y() == pytest.approx(1.005))  # the shaded "did not settle" band
+    assert band.get_height() > 0
+    assert ax.yaxis.get_major_formatter()(0.2, 0) == "0.2"  # plain numbers, not 2 x 10^-1
+    assert [t.get_text() for t in ax.get_legend().get_texts()][-1] == "grid: 1,000 closed loops"

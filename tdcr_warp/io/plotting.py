@@ -485,15 +485,19 @@ def _cell_grid(cells: dict, m: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]
 def _gain_heatmap(fig, ax, cells: dict, m: int, fields: tuple, best: tuple) -> None:
     """Heatmap of metric ``m`` (0 settling time [s], 1 final error [mm], 2 chatter [N], the last
     two on a log scale) over the first two gain fields; blank (hatched): no settled run; a star on
-    the ``best`` cell; settling times written in their cells."""
+    the ``best`` cell (None: none); settling times written in their cells."""
     from matplotlib.colors import LogNorm, Normalize
 
     ua, ub, grid = _cell_grid(cells, m)
     grid = grid * (1e3 if m == 1 else 1.0)
     finite = grid[np.isfinite(grid)]
     positive = finite[finite > 0]
-    norm = (Normalize(finite.min(), finite.max()) if m == 0 or not positive.size
-            else LogNorm(positive.min(), positive.max()))
+    if not finite.size:  # no run settled
+        norm = Normalize(0.0, 1.0)
+    elif m == 0 or not positive.size:
+        norm = Normalize(finite.min(), finite.max())
+    else:
+        norm = LogNorm(positive.min(), positive.max())
     ax.add_patch(plt.Rectangle((0, 0), len(ua), len(ub), fill=False, hatch="//", color="0.8", lw=0, zorder=0))
     im = ax.imshow(np.where(grid > 0, grid, np.nan) if m else grid, origin="lower", aspect="auto", cmap="magma_r",
                    norm=norm, extent=(0, len(ua), 0, len(ub)), zorder=1)
@@ -502,8 +506,9 @@ def _gain_heatmap(fig, ax, cells: dict, m: int, fields: tuple, best: tuple) -> N
             if np.isfinite(v):
                 ax.text(c + 0.5, r + 0.5, f"{v:.2f}", ha="center", va="center", fontsize=6,
                         color="w" if norm(v) > 0.6 else "k")
-    ax.plot(np.searchsorted(ua, best[0]) + 0.5, np.searchsorted(ub, best[1]) + 0.5, "*", ms=14, mfc="c", mec="k",
-            gid="best")
+    if best is not None:
+        ax.plot(np.searchsorted(ua, best[0]) + 0.5, np.searchsorted(ub, best[1]) + 0.5, "*", ms=14, mfc="c", mec="k",
+                gid="best")
     ax.set_xticks(np.arange(len(ua)) + 0.5, [f"{x:.3g}" for x in ua], fontsize=8)
     ax.set_yticks(np.arange(len(ub)) + 0.5, [f"{y:.3g}" for y in ub], fontsize=8)
     ax.set_xlabel(fields[0])
@@ -514,10 +519,10 @@ def _gain_heatmap(fig, ax, cells: dict, m: int, fields: tuple, best: tuple) -> N
 
 def plot_gain_grid(cells: dict, fields: tuple, scatter: tuple, front: tuple, out_dir: Path) -> None:
     """Heatmaps over the first two gain fields (``cells``: (a, b) -> the best settling time [s],
-    final error [m] and chatter [N] over the other fields), the fastest-settling cell starred, and
-    settling time vs chatter (``scatter``: a subset of the runs) with the Pareto ``front``."""
+    final error [m] and chatter [N] over the other fields), the fastest-settling cell starred (if any
+    settled), and settling time vs chatter (``scatter``: a subset of the runs) with the Pareto ``front``."""
     settle = {k: v[0] for k, v in cells.items() if np.isfinite(v[0])}
-    best = min(settle, key=lambda k: (settle[k], cells[k][2])) if settle else next(iter(cells))
+    best = min(settle, key=lambda k: (settle[k], cells[k][2])) if settle else None
     fig, axes = plt.subplots(1, 4, figsize=(19, 4.6), layout="constrained")
     for m in range(3):
         _gain_heatmap(fig, axes[m], cells, m, fields, best)
@@ -589,23 +594,29 @@ def plot_search(history: list[dict], candidates: tuple, grid: tuple | None, sett
     """A gain search's best-so-far objective against closed loops spent (``history``: per
     generation ``closed_loops`` and ``best_objective``), each candidate's objective (``candidates``:
     (closed loops spent after its generation, objective)), the objective value above which runs
-    did not settle (``settled_below``) and, with ``grid`` = (objective, closed loops), the exhaustive
-    grid's best as a line and a point at its cost."""
-    fig, ax = plt.subplots(figsize=(7.5, 4.5))
+    did not settle (``settled_below``, shaded above) and, with ``grid`` = (objective, closed loops),
+    the exhaustive grid's best as a line and a point at its cost. Log axes, plain tick labels."""
+    from matplotlib.ticker import FuncFormatter
+
+    fig, ax = plt.subplots(figsize=(8, 4.8), layout="constrained")
     loops, f = candidates
-    ax.scatter(loops, f, s=5, alpha=0.3, color="C0", label="candidates")
+    ax.scatter(loops, f, s=6, alpha=0.35, color="C0", label="candidates (one closed loop each)")
     x = [h["closed_loops"] for h in history]
-    ax.step(x, [h["best_objective"] for h in history], where="post", color="C1", label="search: best so far")
+    ax.step(x, [h["best_objective"] for h in history], where="post", color="C1", lw=2, label="search: best so far")
     if grid is not None:
         ax.axhline(grid[0], color="C3", ls="--", lw=1, label="grid's best")
         ax.plot([grid[1]], [grid[0]], "o", color="C3", label=f"grid: {grid[1]:,} closed loops")
-    ax.axhline(settled_below, color="0.5", lw=0.8)
-    ax.text(x[0], settled_below, " unsettled above", va="bottom", fontsize=8, color="0.4")
+    ax.axhspan(settled_below, max(float(np.max(f)), settled_below) * 1.5, color="0.9", zorder=0)
+    ax.text(x[0], settled_below, " did not settle (above)", va="bottom", fontsize=8, color="0.35")
     ax.set_xscale("log")
     ax.set_yscale("log")
+    plain = FuncFormatter(lambda v, _: f"{v:g}")
+    for axis in (ax.xaxis, ax.yaxis):
+        axis.set_major_formatter(plain)
+    ax.yaxis.set_minor_formatter(FuncFormatter(lambda v, _: f"{v:g}" if f"{v:g}"[-1] in "2357" else ""))
     ax.set_xlabel("closed loops spent")
-    ax.set_ylabel("objective (settled: settling time [s])")
-    ax.grid(True, alpha=0.3)
-    ax.legend(fontsize=8)
-    fig.tight_layout()
+    ax.set_ylabel("objective: settling time [s] (settled runs)")
+    ax.set_title("gain search (CMA-ES) against the exhaustive grid")
+    ax.grid(True, which="both", alpha=0.25)
+    ax.legend(fontsize=8, loc="upper right")
     _save(fig, path)
