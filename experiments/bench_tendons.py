@@ -5,7 +5,8 @@ displacements are those of the tension-control shapes, so every variant solves t
 robots), and capstan friction (mu = 0.2, slip +1) under tension control. Half the sampled
 tensions are zero: those tendons sit exactly on the taut/slack boundary under displacement
 control; "*_taut" repeats tension and displacement control with every tension in [0.5, 4] N.
-The issue's goals: <= 1.5x and <= 1.3x. Writes results/bench_tendons.json.
+The issue's goals: <= 1.5x and <= 1.3x. Writes results/bench_tendons.json and prints the table of
+docs/performance.md in Markdown.
 
     python experiments/bench_tendons.py [--rods 256] [--repeats 5] [--smoke] [--out results/bench_tendons.json]
 """
@@ -34,6 +35,23 @@ def robot(**tendon) -> tw.Robot:
     90 degrees with inextensible wires have a co-contraction mode (+,-,+,-) that no length fixes."""
     return tw.Robot(density=7800.0, gravity=(0, 0, -9.81),
                     tendons=[tw.Tendon(offset=o, compliance=2.7e-5, **tendon) for o in OFFSETS])
+
+
+CASES = {"tension": "tension control, random tensions in [0, 4] N, half of them 0",
+         "displacement": "displacement control of all 4 tendons, the same shapes",
+         "friction": "friction, mu = 0.2, slip +1",
+         "tension_taut": "tension control, every tension in [0.5, 4] N",
+         "displacement_taut": "displacement control, the same shapes (every tendon taut)"}
+
+
+def markdown(median_s: dict, ratio: dict, iterations: dict, integrations: dict) -> str:
+    """The table of docs/performance.md (tendon features against tension control) from a run."""
+    lines = ["| case | time per batch | against | iterations | integrations per rod |", "|---|---|---|---|---|"]
+    for k, case in CASES.items():
+        against = "" if k.startswith("tension") else f"{ratio[k]:.2f}x"
+        lines.append(f"| {case} | {median_s[k] * 1e3:.1f} ms | {against} | {iterations[k]:.1f} "
+                     f"| {integrations[k]:.1f} |")
+    return "\n".join(lines)
 
 
 def main(argv=None) -> int:
@@ -80,6 +98,7 @@ def main(argv=None) -> int:
         print(f"{k:18s} {med[k] * 1e3:8.1f} ms per batch of {args.rods}  ({ratio[k]:.2f}x {base[k]})  "
               f"iterations {iters[k]:.1f}  integrations {shots[k]:.1f}")
     print(f"displacement-controlled tips vs tension-controlled: {err:.1e} m")
+    print(markdown(med, ratio, iters, shots))
     write_report(args.out,
                  {"meta": metadata("cpu", rods=args.rods, repeats=args.repeats, nodes=args.nodes),
                   "median_s": med, "ratio_to_tension": ratio,

@@ -5,6 +5,7 @@ density) as a statics sweep at the cheapest preset ("fast": RK4, N = 10, Kirchho
 Each size runs `tdcr-warp montecarlo` in a fresh process under /usr/bin/time -v, which reports
 the peak resident set size of the whole process; the sweep's own summary gives the rods/s of
 its chunks. The output folder of each size is deleted afterwards (a 1e7 sweep writes ~2 GB).
+Prints the table of docs/performance.md in Markdown.
 
     python experiments/sweep_scale.py [--rods 100000 1000000 10000000] [--chunk 16384] [--smoke]
 """
@@ -62,6 +63,16 @@ def run(rods: int, chunk: int, work: Path) -> dict:
     return row
 
 
+def markdown(rows: list[dict]) -> str:
+    """The table of docs/performance.md (sweeps at scale) from the runs."""
+    lines = ["| rods | rods/s | process time | peak RSS | output on disk |", "|---:|---:|---:|---:|---:|"]
+    for r in rows:
+        disk = f"{r['output_mib'] / 1024:.1f} GiB" if r["output_mib"] >= 1024 else f"{r['output_mib']:.0f} MiB"
+        lines.append(f"| {r['rods']:,} | {r['rods_per_s']:,.0f} | {r['process_s']:.0f} s | {r['peak_rss_mib']:.0f} MiB "
+                     f"| {disk} |")
+    return "\n".join(lines)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--rods", type=int, nargs="+", default=[100_000, 1_000_000, 10_000_000])
@@ -72,6 +83,7 @@ def main(argv=None) -> int:
     sizes, chunk = ([1000], 500) if args.smoke else (args.rods, args.chunk)
     with tempfile.TemporaryDirectory() as tmp:
         rows = [run(n, chunk, Path(tmp)) for n in sizes]
+    print(markdown(rows))
     write_report(args.out, {"meta": metadata("cpu", preset="fast"), "runs": rows,
                             "rss_ratio_largest_to_smallest": rows[-1]["peak_rss_mib"] / rows[0]["peak_rss_mib"]})
     return 0
