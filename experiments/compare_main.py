@@ -262,7 +262,7 @@ def soft_dynamics(device):
 
 
 def small_dt_dynamics(device):
-    """dt below the single-shooting limit of the report rod (README): the steps of the softer rods
+    """dt below the single-shooting limit of the report rod (docs/accuracy.md): the steps of the softer rods
     fail and are flagged, the stiffest rod goes on."""
     rob = seed_robot(youngs_modulus=np.array([190e9, 1e12, 5e12]))
     with warnings.catch_warnings():

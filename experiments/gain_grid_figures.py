@@ -1,4 +1,4 @@
-"""Regenerate the README's gain grid figure (docs/figures/gain_grid.png) from examples/gain_grid.toml.
+"""Regenerate the docs' gain grid figure (docs/figures/gain_grid.png) from examples/gain_grid.toml.
 
     python experiments/gain_grid_figures.py [--smoke] [--out results/gain_grid.json]
 """

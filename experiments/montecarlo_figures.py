@@ -1,4 +1,4 @@
-"""Regenerate the README's montecarlo figure (docs/figures/montecarlo.png) from examples/montecarlo.toml.
+"""Regenerate the docs' montecarlo figure (docs/figures/montecarlo.png) from examples/montecarlo.toml.
 
     python experiments/montecarlo_figures.py [--smoke] [--out results/montecarlo.json]
 """

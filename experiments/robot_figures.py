@@ -1,4 +1,4 @@
-"""Regenerate the README's pictures of the robot: docs/figures/robot.png (the figure
+"""Regenerate the docs' pictures of the robot: docs/figures/robot.png (the figure
 `tdcr-warp static examples/seed_robot.toml` draws), docs/figures/robot.gif (the animation
 `tdcr-warp simulate examples/seed_dynamics.toml --animate` draws, shapes every 5 steps) and
 docs/figures/viewer.png (the robot.html of `tdcr-warp static examples/helix_two_sections.toml

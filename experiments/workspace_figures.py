@@ -1,4 +1,4 @@
-"""Regenerate the README's workspace figure (docs/figures/workspace.png) from examples/workspace.toml.
+"""Regenerate the docs' workspace figure (docs/figures/workspace.png) from examples/workspace.toml.
 
     python experiments/workspace_figures.py [--smoke] [--out results/workspace.json]
 """

@@ -65,7 +65,7 @@ def _envelope_module():
 
 
 def test_random_rods_inside_the_envelope_converge():
-    """Seeded sample of the documented envelope (README); 1e5 samples measured 100%."""
+    """Seeded sample of the documented envelope (docs/accuracy.md); 1e5 samples measured 100%."""
     env = _envelope_module()
     s = env.sample_envelope(600, np.random.default_rng(7))
     sol = tw.solve_static(tw.Robot(**s["robot"]), s["tensions"], nodes=20)
@@ -88,7 +88,7 @@ def test_random_rods_curled_a_full_turn_converge():
 
 
 def test_random_dynamic_rods_inside_the_envelope_converge():
-    """Seeded sample of the documented dynamics envelope (README): 12,110 runs measured 100%."""
+    """Seeded sample of the documented dynamics envelope (docs/accuracy.md): 12,110 runs measured 100%."""
     env = _envelope_module()
     row = env.run_dynamics(300, np.random.default_rng(5), **env.DYN_ENVELOPE)
     assert row["inside"] >= 100

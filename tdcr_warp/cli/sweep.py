@@ -140,4 +140,4 @@ def _linearised(data: dict, device, summary: dict) -> dict:
                                                                       for r in ratio],
             "contributions_m2": dict(zip(lin["parameters"], lin["contributions"].tolist())),
             "note": "first order: J Sigma J^T from one solve; the Monte-Carlo spread departs from it as the "
-                    "scatter grows (README, Sensitivities)"}
+                    "scatter grows (docs/sensitivities.md)"}

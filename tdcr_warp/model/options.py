@@ -145,7 +145,7 @@ class StaticOptions:
 
     @classmethod
     def preset(cls, name: str, **overrides) -> "StaticOptions":
-        """Named settings chosen from experiments/speed_accuracy.py (see README for the
+        """Named settings chosen from experiments/speed_accuracy.py (see docs/accuracy.md for the
         measured tip errors): "fast", "balanced" (the defaults at N = 20) or "accurate"."""
         if name not in PRESETS:
             raise InputError(f"solver preset must be one of {tuple(PRESETS)}, got {name!r}")

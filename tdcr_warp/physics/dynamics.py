@@ -94,7 +94,7 @@ def _check_stepping(dt, alpha) -> None:
 def _warn_single_shooting(robot: Robot, precision: str, dt: float, c0: float) -> None:
     """Warn where dt is below what single shooting resolves: a start error grows along the rod
     by exp(L (rho A c0^2 / (EI + c0 Bbt))^(1/4) / sqrt 2), beyond the precision's reach past 1e6
-    (float64) or 1e4 (float32) (README, robustness envelope). Steps there may fail (flagged).
+    (float64) or 1e4 (float32) (docs/accuracy.md, robustness). Steps there may fail (flagged).
     c0: BDF-alpha's c0 at dt [1/s]; the warning points at the Simulator's caller."""
     sec = robot.section()
     limit = math.log(1e6 if precision == "float64" else 1e4)

@@ -492,7 +492,7 @@ def solve_static(robot: Robot, tensions=None, *, displacements=None, slip=None, 
     state, where every tendon holds its pretension. slip: (B, K) or (K,) friction's slip
     direction per tendon, +1 (pulled, the default) or -1 (released). history: the previous
     solution of a quasi-static sequence (friction): each tendon keeps its previous tension where
-    friction can hold it (stick) and slips where it cannot (README, *Tendons*); slip is then
+    friction can hold it (stick) and slips where it cannot (docs/tendons.md); slip is then
     not used. options / overrides: :class:`StaticOptions` fields (nodes, integrator, model, ...).
     device: "cpu" or "cuda:0" (None: Warp's default). initial: an earlier solution of the
     same batch size to warm-start from (its unknowns and Jacobian). parameters: robot fields
