@@ -199,7 +199,7 @@ def run_dynamics(samples: int, rng, *, zeta=(0.01, 1.0), dt=(1e-3, 1.0), amp_min
         results["converged" if tr.converged.all() else "failed"] += 1
         if not tr.converged.all():
             f = int(tr.failed_step[0])
-            reason = tw.types.describe_status(int(tr.status[f, 0]))
+            reason = tw.describe_status(int(tr.status[f, 0]))
             results["reasons"][reason] = results["reasons"].get(reason, 0) + 1
             results["failures"].append(dict(step=f, status=int(tr.status[f, 0]), dt=float(dt[b]),
                                             alpha=float(alpha[b]), amplification_log10=float(amp[b] / np.log(10)),

@@ -2,6 +2,7 @@
 
     python experiments/import_graph.py            # layers, floors, cycles, largest pieces
     python experiments/import_graph.py --check    # exit 1 on an upward import, a cycle or an oversized piece
+    python experiments/import_graph.py --out results/import_graph.json   # the same as JSON, with run metadata
 
 Every import counts, at module level or inside a function. ``kernels/`` is mapped to
 ``tdcr_warp.kernels`` as the package installs it. The rules (docs/architecture.md):
@@ -150,21 +151,29 @@ def oversized(root: Path = ROOT) -> list[str]:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--check", action="store_true", help="exit 1 on an upward import, a cycle or an oversized piece")
+    parser.add_argument("--out", help="also write the graph, floors, largest pieces and problems as JSON")
+    parser.add_argument("--smoke", action="store_true", help="accepted for the experiments' smoke test (always quick)")
     args = parser.parse_args(argv)
     g = graph()
     problems = upward_imports(g) + [" -> ".join(c) + " (cycle)" for c in cycles(g)] + oversized()
-    if not cycles(g):
-        fl = floors(g)
+    fl = floors(g) if not cycles(g) else {}
+    if fl:
         print(f"{len(g)} modules on {max(fl.values()) + 1} floors")
         for layer in LAYERS:
             names = sorted((n for n in g if layer_of(n) == layer), key=lambda n: (fl[n], n))
             print(f"  {layer:8s} " + ", ".join(f"{n.split('.', 2)[-1]}({fl[n]})" for n in names))
-    functions = [p for p in pieces() if p[2] == "function"]
-    classes = [p for p in pieces() if p[2] == "class"]
-    print(f"largest function: {functions[0][1]} ({functions[0][0]} lines); "
-          f"largest class: {classes[0][1]} ({classes[0][0]} lines)")
+    largest = {kind: next(p for p in pieces() if p[2] == kind) for kind in ("function", "class")}
+    print("; ".join(f"largest {kind}: {where} ({n} lines)" for kind, (n, where, _) in largest.items()))
     for line in problems:
         print("PROBLEM:", line)
+    if args.out:
+        sys.path.insert(0, str(ROOT / "experiments"))
+        from _common import metadata, write_report
+
+        write_report(args.out, {"meta": metadata("none"), "layers": LAYERS, "floors": fl,
+                                "imports": {n: sorted(d) for n, d in g.items()},
+                                "largest": {k: {"where": w, "lines": n} for k, (n, w, _) in largest.items()},
+                                "problems": problems})
     return 1 if (args.check and problems) else 0
 
 
