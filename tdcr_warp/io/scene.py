@@ -144,14 +144,6 @@ def _integer(value, where: str) -> int:
     return value
 
 
-def _build(kind, kw: dict, where: str):
-    """kind(**kw), with the table's location in front of any InputError."""
-    try:
-        return kind(**kw)
-    except InputError as e:
-        raise InputError(f"{where}: {e}") from None
-
-
 def _show(value) -> str:
     text = repr(value)
     return text if len(text) <= 200 else text[:200] + " ..."
