@@ -9,11 +9,13 @@ dynamics RK4, N = 100, dt = 0.625 ms); time per rod at B = 4096 (statics, median
 rod-step at B = 256 (dynamics). Writes JSON and a Pareto plot per scene.
 
     python experiments/speed_accuracy.py [--smoke] [--out results/speed_accuracy.json]
+    python experiments/speed_accuracy.py --replot results/speed_accuracy.json   # the figure alone
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import time
 from pathlib import Path
@@ -139,10 +141,18 @@ def pick_table(rows: list[dict]) -> list[dict]:
     return out
 
 
+def short_label(setting: str) -> str:
+    """'integrator=rk4, nodes=20, rod=kirchhoff' -> 'rk4 N=20 kirchhoff' (a point's label on the figure)."""
+    words = [w.split("=", 1) for w in setting.split(", ")]
+    return " ".join(f"N={v}" if k == "nodes" else v if k in ("integrator", "model", "rod", "precision") else f"{k}={v}"
+                    for k, v in words)
+
+
 def plot(rows: list[dict], path: Path) -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import FormatStrFormatter, LogLocator, NullFormatter
     names = list(dict.fromkeys(r["scene"] for r in rows))
     fig, axes = plt.subplots(2, 3, figsize=(16, 9))
     for ax, name in zip(axes.ravel(), names):
@@ -152,9 +162,16 @@ def plot(rows: list[dict], path: Path) -> None:
         ax.loglog(t, e, "o", ms=4, color="C0", alpha=0.5, label="setting")
         front = pareto_front(t, e)  # the settings no other beats in both time and error
         ax.loglog(t[front], e[front], "r.-", lw=1, label="Pareto front")
-        for i in front:  # labelled on the front only, alternately above and below: no overlap
-            ax.annotate(pts[i]["setting"].replace("integrator=", "").replace("nodes=", "N="), (t[i], e[i]),
-                        xytext=(4, 6 if i % 2 else -10), textcoords="offset points", fontsize=6)
+        for rank, i in enumerate(sorted(front, key=lambda j: t[j])):  # the front only, in time order,
+            # alternately right-above and left-below, so neighbours on the front do not overlap
+            ax.annotate(short_label(pts[i]["setting"]), (t[i], e[i]), fontsize=6.5,
+                        xytext=(5, 5) if rank % 2 == 0 else (-5, -11), textcoords="offset points",
+                        ha="left" if rank % 2 == 0 else "right")
+        if t.max() < 10 * t.min():  # within a decade: plain numbers at 1, 2, 5 x 10^k
+            ax.xaxis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)))
+            ax.xaxis.set_major_formatter(FormatStrFormatter("%g"))
+        ax.xaxis.set_minor_formatter(NullFormatter())  # no colliding minor labels
+        ax.margins(x=0.15, y=0.1)
         ax.legend(fontsize=7)
         ax.set_title(name)
         ax.set_xlabel("time per rod [us]" if "dynamic" not in name else "time per rod-step [us]")
@@ -170,12 +187,15 @@ def main(argv=None) -> int:
     ap.add_argument("--smoke", action="store_true")
     ap.add_argument("--device", default="cpu")
     ap.add_argument("--out", default=str(ROOT / "results" / "speed_accuracy.json"))
+    ap.add_argument("--replot", metavar="JSON", help="redraw the figure from a saved report (its --out) and stop")
     args = ap.parse_args(argv)
+    fig = ROOT / "docs" / "figures" / "speed_accuracy.png"
+    if args.replot:
+        plot(json.loads(Path(args.replot).read_text())["rows"], fig)
+        return 0
     rows = run_static(16 if args.smoke else 4096, 1 if args.smoke else 2, args.smoke)
     rows += run_dynamic(2 if args.smoke else 256, args.smoke)
     if not args.smoke:
-        fig = ROOT / "docs" / "figures" / "speed_accuracy.png"
-        fig.parent.mkdir(parents=True, exist_ok=True)
         plot(rows, fig)
     table = pick_table(rows)
     for t in table:

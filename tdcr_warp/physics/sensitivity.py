@@ -6,7 +6,7 @@ dy/dp = dy/dp|_x + dy/dx dx/dp. J and dy/dx come from nu forward-difference prob
 fresh J: Newton's last one may be a Broyden update); dr/dp and dy/dp|_x from one probe
 integration per input, or in closed form where the input enters the residual alone: the tip
 wrench (dr/dF = -I / (EI/L^2), dr/dM = -I / (EI/L): the residual's scales) and a motor
-displacement (dr/dq = 1/L, kernels/rod.py ``length_residuals``). No Newton solve is repeated.
+displacement (dr/dq = 1/L, kernels/tendons.py ``length_residuals``). No Newton solve is repeated.
 
 The tip pose y = [p(L) [m], theta [rad]]: theta is the world-frame rotation vector of a small
 change of the tip frame, dR R^T = [theta]x.
@@ -283,7 +283,7 @@ def _input_rates(sh, x: np.ndarray, tau: np.ndarray, tables: Tables, lo: int, hi
 def _command_rates(dx: np.ndarray, tables: Tables, lo: int, hi: int, rod: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """d base tension / d command (b, K, K) and d slack length / d command (b, K, K) from dx / d input:
     1 for tension control, fs dx / dq for a taut displaced tendon; a slack one's unknown x measures
-    its slack, -x slope L (kernels/rod.py length_residuals)."""
+    its slack, -x slope L (kernels/tendons.py length_residuals)."""
     b = dx.shape[0]
     tmode = tables.tmode[0]
     K = len(tmode)

@@ -3,7 +3,7 @@ straight-rod model of their tensions (a solve's start), and the taut / slack com
 settled between smooth solves.
 
 A tendon under displacement control has one shooting unknown: its tension where it is taut,
-a measure of its spare length where it is slack (kernels/rod.py length_residuals).
+a measure of its spare length where it is slack (kernels/tendons.py length_residuals).
 """
 
 from __future__ import annotations
