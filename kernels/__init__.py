@@ -6,6 +6,8 @@ family's file and keyed only by what it needs; a feature a scene lacks compiles 
 
   term                                           file
   ---------------------------------------------  ----------------------------------------------
+  MODELS, RODS, INTEGRATORS, STAGES, Features    variants.py   what selects a variant (plain data,
+                                                               no Warp: the model layer reads it)
   Model, Control, Step; row, rvec, dvec,         structs.py    (packed tables: layout.py)
     term_node; the slots of the BDF history
   body_strains, strains, store_slot              strains.py    constitutive law (with strain damping)

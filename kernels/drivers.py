@@ -23,8 +23,8 @@ import warp as wp
 from .integration import N_BASE, make_shoot
 from .layout import CONVERGED, MAX_ITER
 from .newton import make_newton
-from .rod import Features
 from .structs import make_structs
+from .variants import Features
 
 
 def module_names(dtype, integrator: str, model: str, dynamic: bool, rod: str, features: Features) -> dict:

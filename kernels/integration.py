@@ -31,12 +31,11 @@ from .layout import (
     TO_PATH,
     TO_TURN,
 )
-from .rod import Features, make_rod_funcs
+from .rod import make_rod_funcs
 from .structs import make_rows, make_structs, tendon_vectors
 from .tendons import make_displacement
+from .variants import STAGES, Features
 
-STAGES = {"euler": 1, "midpoint": 2, "rk4": 4}
-INTEGRATORS = tuple(STAGES)
 N_BASE = 6  # n(0), m(0); + one tension per displacement-controlled tendon
 
 

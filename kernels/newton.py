@@ -246,7 +246,6 @@ def make_newton_step(dtype, nu: int):
 @functools.cache
 def make_update(dtype, nu: int, central: bool):
     """``update``: one damped (quasi-)Newton iteration of a rod."""
-    vec = wp.types.vector(nu, dtype)
     half = dtype(0.5)
     n_probes = probe_counts(nu, central)[0]
     st = make_newton_state(dtype, nu)

@@ -20,7 +20,6 @@ Sources: [RW11] Rucker & Webster 2011 (statics), [T19] Till, Aloi & Rucker 2019 
 
 import functools
 from types import SimpleNamespace
-from typing import NamedTuple
 
 import warp as wp
 
@@ -28,35 +27,17 @@ from .friction import make_profiles, make_tensions
 from .inertia import make_damping, make_inertia
 from .layout import FE, KBT, KSE
 from .strains import make_strains
-from .structs import SLOT_WIDTH, make_rows, make_structs, tendon_vectors
+from .structs import make_rows, make_structs, tendon_vectors
 from .tendons import (
     make_coupled_load,
     make_displacement,
     make_node_loads,
     make_tendon_rates,
 )
+from .variants import ALL, MODELS, RODS, Features
 
-__all__ = ["ALL", "FRICTION_PASSES", "MODELS", "RODS", "SLOT_WIDTH", "Features", "make_rod_funcs"]
+__all__ = ["FRICTION_PASSES", "make_rod_funcs"]
 
-MODELS = ("coupled", "point")
-RODS = ("cosserat", "kirchhoff")
-
-
-class Features(NamedTuple):
-    """Physics a scene contains; a False field compiles its terms out (``ALL``: the general kernel)."""
-
-    gravity: bool = True  # distributed external force rho A g
-    point_loads: bool = True  # point forces along the rod
-    helix: bool = True  # routing with a varying offset (helical, converging)
-    drag: bool = True  # square-law drag (dynamics)
-    kinks: bool = True  # coupled model: the push of tendons kinked at a jump of n or m
-    friction: bool = False  # capstan friction: tensions vary along s
-    tendons: int = 0  # K > 0: per-tendon states along s (turning, path length, unstretched length)
-    displaced: int = 0  # displacement-controlled tendons: one shooting unknown and residual each
-    spline: bool = False  # tendons routed through points (cubic segments in Model.route)
-
-
-ALL = Features()
 FRICTION_PASSES = 2  # fixed-point passes of the friction load through the coupled 6x6 solve
 
 

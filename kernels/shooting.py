@@ -14,11 +14,12 @@ from .drivers import (
     make_probe_kernels,
     module_names,
 )
-from .integration import INTEGRATORS, N_BASE, STAGES, make_shoot
+from .integration import N_BASE, make_shoot
 from .newton import make_newton
-from .rod import ALL, Features, make_rod_funcs
+from .rod import make_rod_funcs
+from .variants import ALL, INTEGRATORS, STAGES, Features
 
-__all__ = ["INTEGRATORS", "make_shooting_kernels"]
+__all__ = ["make_shooting_kernels"]
 
 
 @functools.cache

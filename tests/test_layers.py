@@ -29,6 +29,10 @@ def test_no_import_cycle(graph):
     assert not import_graph.cycles(graph)
 
 
+def test_pieces_within_size_limits():
+    assert not import_graph.oversized(), "\n".join(import_graph.oversized())
+
+
 def _tree(tmp_path, files: dict[str, str]) -> Path:
     for rel, text in files.items():
         path = tmp_path / rel

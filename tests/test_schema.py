@@ -11,8 +11,7 @@ from dataclasses import fields
 from pathlib import Path
 
 import pytest
-from tdcr_warp.kernels.rod import MODELS, RODS
-from tdcr_warp.kernels.shooting import INTEGRATORS
+from tdcr_warp.kernels.variants import INTEGRATORS, MODELS, RODS
 
 from tdcr_warp.apps import control as control_app
 from tdcr_warp.apps.ik import solve_ik

@@ -13,8 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tdcr_warp.kernels.rod import MODELS
-from tdcr_warp.kernels.shooting import INTEGRATORS
+from tdcr_warp.kernels.variants import INTEGRATORS, MODELS
 from tdcr_warp.model.robot import InputError
 
 # The [solver] fields that the command line overrides (--nodes, --integrator, --model, --precision).

@@ -21,8 +21,7 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import NamedTuple
 
-from tdcr_warp.kernels.rod import ALL, MODELS, RODS, Features
-from tdcr_warp.kernels.shooting import INTEGRATORS
+from tdcr_warp.kernels.variants import ALL, INTEGRATORS, MODELS, RODS, Features
 
 __all__ = ["Variant", "compile_variant", "covering_variants", "all_variants", "main"]
 

@@ -17,7 +17,8 @@ import numpy as np
 import warp as wp
 
 from tdcr_warp.kernels import layout
-from tdcr_warp.kernels.rod import ALL, SLOT_WIDTH, Features
+from tdcr_warp.kernels.structs import SLOT_WIDTH
+from tdcr_warp.kernels.variants import ALL, Features
 from tdcr_warp.model.robot import InputError, Robot
 
 PRECISIONS = {"float64": (wp.float64, np.float64), "float32": (wp.float32, np.float32)}

@@ -33,8 +33,8 @@ from tdcr_warp.core.build import (
 )
 from tdcr_warp.kernels import layout
 from tdcr_warp.kernels.history import make_history_kernels
-from tdcr_warp.kernels.rod import MODELS
 from tdcr_warp.kernels.shooting import make_shooting_kernels
+from tdcr_warp.kernels.variants import MODELS
 from tdcr_warp.model.robot import Robot
 
 CHECK_EVERY = 4  # CUDA: Newton iterations between reads of the active count

@@ -10,8 +10,7 @@ import math
 from dataclasses import dataclass, fields, replace
 
 from tdcr_warp.kernels import layout
-from tdcr_warp.kernels.rod import MODELS, RODS
-from tdcr_warp.kernels.shooting import INTEGRATORS
+from tdcr_warp.kernels.variants import INTEGRATORS, MODELS, RODS
 from tdcr_warp.model.robot import InputError
 
 __all__ = ["COMMANDS", "DRIVERS", "PRECISIONS", "PRESETS", "StaticOptions", "describe_status", "failure_reasons",
