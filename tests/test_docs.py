@@ -2,7 +2,7 @@
 with every warning an error, and the README stays short and starts with the two commands.
 
 Runnable blocks: every fenced block opened by exactly ```bash or ```python at the start of a line
-in docs/tutorials/*.md (but the overview, index.md) and docs/getting-started.md. They run in page order, in one fresh working
+in docs/tutorials/*.md (but the overview, index.md), docs/getting-started.md and README.md. They run in page order, in one fresh working
 directory per page that holds a link `examples` to the repository's examples/ (the pages are
 written for the repository root): a bash block with `bash -euo pipefail`, this interpreter's bin
 folder first on PATH (so `tdcr-warp` is the installed command); the python blocks of a page in one
@@ -25,7 +25,8 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 DOCS = ROOT / "docs"
-PAGES = [p for p in sorted((DOCS / "tutorials").glob("*.md")) if p.name != "index.md"] + [DOCS / "getting-started.md"]
+PAGES = ([p for p in sorted((DOCS / "tutorials").glob("*.md")) if p.name != "index.md"]
+         + [DOCS / "getting-started.md", ROOT / "README.md"])
 NO_TEST = "<!-- no-test"
 README_MAX_LINES = 200
 FIRST_COMMAND = ("python3 -m venv .venv && .venv/bin/pip install -e . && "
@@ -72,7 +73,7 @@ def test_the_block_reader_honours_the_marker_and_the_languages():
         ("bash", "echo a\n", 3, True), ("bash", "mkdocs serve\n", 7, False), ("toml", "a = 1\n", 10, True)]
 
 
-@pytest.mark.parametrize("page", PAGES, ids=lambda p: str(p.relative_to(DOCS)))
+@pytest.mark.parametrize("page", PAGES, ids=lambda p: str(p.relative_to(ROOT)))
 def test_every_code_block_of_the_page_runs(page, tmp_path, monkeypatch):
     blocks = runnable(page)
     assert blocks, f"{page.relative_to(ROOT)} has no runnable block"
