@@ -3,6 +3,7 @@
     python experiments/import_graph.py            # layers, floors, cycles, largest pieces
     python experiments/import_graph.py --check    # exit 1 on an upward import, a cycle or an oversized piece
     python experiments/import_graph.py --out results/import_graph.json   # the same as JSON, with run metadata
+    python experiments/import_graph.py --figure docs/figures/layers.png  # the picture on docs/architecture.md
 
 Every import counts, at module level or inside a function. ``kernels/`` is mapped to
 ``tdcr_warp.kernels`` as the package installs it. The rules (docs/architecture.md):
@@ -148,10 +149,58 @@ def oversized(root: Path = ROOT) -> list[str]:
     return [f"{where}: {kind} of {n} lines (limit {limit[kind]})" for n, where, kind in pieces(root) if n > limit[kind]]
 
 
+def layer_imports(g: dict[str, set[str]]) -> dict[tuple[str, str], int]:
+    """(importing layer, imported layer) -> number of module imports between two layers."""
+    counts: dict[tuple[str, str], int] = {}
+    for name, deps in g.items():
+        for dep in deps:
+            pair = (layer_of(name), layer_of(dep))
+            if None not in pair and pair[0] != pair[1]:
+                counts[pair] = counts.get(pair, 0) + 1
+    return counts
+
+
+def draw(g: dict[str, set[str]], path: str) -> None:
+    """The layers top to bottom, each with its modules (left to right by floor), and an arrow per pair of
+    layers with the number of imports from one to the other (all of them point down)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fl, counts = floors(g), layer_imports(g)
+    fig, ax = plt.subplots(figsize=(11, 8.5))
+    ax.set_axis_off()
+    ax.set_xlim(-3.4, 10.2)
+    ax.set_ylim(-0.6, len(LAYERS) - 0.4)
+    for row, layer in enumerate(LAYERS):
+        y = len(LAYERS) - 1 - row
+        names = sorted((n for n in g if layer_of(n) == layer and n.count(".") == 2), key=lambda n: (fl[n], n))
+        ax.add_patch(plt.Rectangle((0, y - 0.36), 10, 0.72, color=f"C{row}", alpha=0.15, lw=0))
+        ax.text(-0.15, y, layer, ha="right", va="center", fontsize=13, weight="bold", color=f"C{row}")
+        per_line = 7
+        for i, name in enumerate(names):
+            line, col = divmod(i, per_line)
+            ax.text(0.25 + col * 1.4, y + 0.16 - 0.3 * line, name.rsplit(".", 1)[-1], fontsize=9, va="center",
+                    family="monospace")
+    for (upper, lower), n in counts.items():
+        a, b = LAYERS.index(upper), LAYERS.index(lower)
+        x = -3.2 + 0.42 * a + 0.06 * (b - a)
+        y0, y1 = len(LAYERS) - 1 - a - 0.3, len(LAYERS) - 1 - b + 0.25
+        ax.annotate("", (x, y1), (x, y0), arrowprops=dict(arrowstyle="->", color=f"C{a}", lw=0.5 + 0.2 * n ** 0.5))
+        ax.text(x + 0.03, y1 + 0.02, str(n), fontsize=6.5, color=f"C{a}", ha="left", va="bottom")
+    ax.set_title(f"tdcr_warp: {len(g)} modules in {len(LAYERS)} layers, each importing only from the layers below "
+                 f"(arrows: the number of imports from one layer to another); no cycle", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--check", action="store_true", help="exit 1 on an upward import, a cycle or an oversized piece")
     parser.add_argument("--out", help="also write the graph, floors, largest pieces and problems as JSON")
+    parser.add_argument("--figure", help="draw the layers picture (PNG) into this file")
     parser.add_argument("--smoke", action="store_true", help="accepted for the experiments' smoke test (always quick)")
     args = parser.parse_args(argv)
     g = graph()
@@ -166,11 +215,14 @@ def main(argv: list[str] | None = None) -> int:
     print("; ".join(f"largest {kind}: {where} ({n} lines)" for kind, (n, where, _) in largest.items()))
     for line in problems:
         print("PROBLEM:", line)
+    if args.figure:
+        draw(g, args.figure)
     if args.out:
         sys.path.insert(0, str(ROOT / "experiments"))
         from _common import metadata, write_report
 
         write_report(args.out, {"meta": metadata("none"), "layers": LAYERS, "floors": fl,
+                                "layer_imports": {f"{a} -> {b}": n for (a, b), n in sorted(layer_imports(g).items())},
                                 "imports": {n: sorted(d) for n, d in g.items()},
                                 "largest": {k: {"where": w, "lines": n} for k, (n, w, _) in largest.items()},
                                 "problems": problems})
