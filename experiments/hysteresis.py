@@ -83,7 +83,8 @@ def main(argv=None) -> int:
         fig, ax = plt.subplots(1, 2, figsize=(10, 4))
         for mu, (tips, tb, _, _, work) in runs.items():
             ax[0].plot(q * 1e3, tips[:, 1] * 1e3, "o-" if mu else "--", ms=3, label=f"mu = {mu}")
-            ax[1].plot(q * 1e3, tb, "o-" if mu else "--", ms=3, label=f"mu = {mu} ({work * 1e3:.2f} mJ lost)")
+            lost_mj = round(work * 1e3, 2) + 0.0  # + 0.0: a round-off loss of -0.0004 mJ shows as 0.00
+            ax[1].plot(q * 1e3, tb, "o-" if mu else "--", ms=3, label=f"mu = {mu} ({lost_mj:.2f} mJ lost)")
         ax[0].set(xlabel="motor displacement q [mm]", ylabel="tip deflection y [mm]", title="tip vs motor")
         ax[1].set(xlabel="motor displacement q [mm]", ylabel="motor tension [N]", title="tension vs motor")
         for a in ax:

@@ -198,7 +198,8 @@ def draw(g: dict[str, set[str]], path: str) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--check", action="store_true", help="exit 1 on an upward import, a cycle or an oversized piece")
+    parser.add_argument("--check", action="store_true",
+                        help="exit 1 on an upward import, a cycle or an oversized piece")
     parser.add_argument("--out", help="also write the graph, floors, largest pieces and problems as JSON")
     parser.add_argument("--figure", help="draw the layers picture (PNG) into this file")
     parser.add_argument("--smoke", action="store_true", help="accepted for the experiments' smoke test (always quick)")

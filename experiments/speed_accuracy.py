@@ -9,7 +9,7 @@ dynamics RK4, N = 100, dt = 0.625 ms); time per rod at B = 4096 (statics, median
 rod-step at B = 256 (dynamics). Writes JSON and a Pareto plot per scene.
 
     python experiments/speed_accuracy.py [--smoke] [--out results/speed_accuracy.json]
-    python experiments/speed_accuracy.py --replot results/speed_accuracy.json   # the figure alone
+    python experiments/speed_accuracy.py --replot results/speed_accuracy.json   # figure and table from a saved run
 """
 
 from __future__ import annotations
@@ -141,6 +141,24 @@ def pick_table(rows: list[dict]) -> list[dict]:
     return out
 
 
+def markdown(table: list[dict]) -> str:
+    """pick_table's rows as the Markdown table of docs/accuracy.md: a row per scene, a column per budget,
+    each cell the fastest setting within it, its cost and its speed-up over "accurate" ("-": none)."""
+    names = list(dict.fromkeys(t["scene"] for t in table))
+    lines = ["| scene | " + " | ".join(f"{b:.0e} m" for b in BUDGETS) + " |", "|---" * (len(BUDGETS) + 1) + "|"]
+    for name in names:
+        cells = []
+        for t in (t for t in table if t["scene"] == name):
+            if t["setting"] is None:
+                cells.append("-")
+                continue
+            unit = "us per rod-step" if "dynamic" in name else "us"
+            speedup = f" ({t['speedup_vs_accurate']:.1f}x)" if t["speedup_vs_accurate"] else ""
+            cells.append(f"{short_label(t['setting'])}: {t['cost_us']:.3g} {unit}{speedup}, {t['tip_error_m']:.1e} m")
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
 def short_label(setting: str) -> str:
     """'integrator=rk4, nodes=20, rod=kirchhoff' -> 'rk4 N=20 kirchhoff' (a point's label on the figure)."""
     words = [w.split("=", 1) for w in setting.split(", ")]
@@ -191,17 +209,16 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     fig = ROOT / "docs" / "figures" / "speed_accuracy.png"
     if args.replot:
-        plot(json.loads(Path(args.replot).read_text())["rows"], fig)
+        rows = json.loads(Path(args.replot).read_text())["rows"]
+        plot(rows, fig)
+        print(markdown(pick_table(rows)))
         return 0
     rows = run_static(16 if args.smoke else 4096, 1 if args.smoke else 2, args.smoke)
     rows += run_dynamic(2 if args.smoke else 256, args.smoke)
     if not args.smoke:
         plot(rows, fig)
     table = pick_table(rows)
-    for t in table:
-        if t["setting"]:
-            sp = f"{t['speedup_vs_accurate']:.1f}x" if t["speedup_vs_accurate"] else "-"
-            print(f"{t['scene']:26s} budget {t['budget_m']:.0e} m: {t['setting']:45s} {t['cost_us']:8.1f} us, {sp}")
+    print(markdown(table))
     write_report(args.out, {"meta": metadata(args.device), "rows": rows, "table": table})
     return 0
 

@@ -2,9 +2,9 @@
 with every warning an error, and the README stays short and starts with the two commands.
 
 Runnable blocks: every fenced block opened by exactly ```bash or ```python at the start of a line
-in docs/tutorials/*.md (but the overview, index.md), docs/getting-started.md and README.md. They run in page order, in one fresh working
-directory per page that holds a link `examples` to the repository's examples/ (the pages are
-written for the repository root): a bash block with `bash -euo pipefail`, this interpreter's bin
+in docs/tutorials/*.md (but the overview, index.md), docs/getting-started.md and README.md. They
+run in page order, in one fresh working directory per page that holds a link `examples` to the
+repository's examples/ (the pages are written for the repository root): a bash block with `bash -euo pipefail`, this interpreter's bin
 folder first on PATH (so `tdcr-warp` is the installed command); the python blocks of a page in one
 namespace, in this process, in that directory.
 
