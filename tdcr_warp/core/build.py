@@ -215,6 +215,9 @@ class Tables:
         return self.rod[:, layout.KSE:layout.KBT + 3]
 
 
+_YZX, _ZXY = [1, 2, 0], [2, 0, 1]
+
+
 def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """a x b over the last axis, the same arithmetic as np.cross at a fraction of its overhead."""
     return np.stack([a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1], a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2],
@@ -269,19 +272,27 @@ class StraightRod:
         return cls(external=np.concatenate(np.broadcast_arrays(n0, m0), axis=1), points=points, tangent=t,
                    tangent_norm=norm, arm=arm, path=path)
 
+    @functools.cached_property
+    def _lever(self) -> np.ndarray:
+        """(1|B, K, 6) each lever arm's components as a x F takes them (``_cross``): a x F =
+        [a_y, a_z, a_x] F[z, x, y] - [a_z, a_x, a_y] F[y, z, x]."""
+        return np.concatenate((self.arm[..., _YZX], self.arm[..., _ZXY]), axis=-1)
+
     def guess(self, tensions: np.ndarray) -> np.ndarray:
-        """n(0), m(0) (B, 6) of the straight rod under tensions (B, K): the Newton start."""
-        B = tensions.shape[0]
-        ext = np.broadcast_to(self.external, (B, 6))
-        n0, m0 = ext[:, :3], ext[:, 3:]
-        for k in range(tensions.shape[1]):
-            F = -tensions[:, k, None] * self.tangent[:, k] / self.tangent_norm[:, k]
-            n0 = n0 + F
-            m0 = m0 + _cross(self.arm[:, k], F)
+        """n(0), m(0) (B, 6) of the straight rod under tensions (B, K): the Newton start. The
+        external wrench, then each tendon's force F and moment arm x F, then the point forces
+        are added in that order (a running sum, the arithmetic of adding them one by one)."""
+        B, K = tensions.shape
+        terms = np.empty((B, K + 1 + (self.points is not None), 6))
+        terms[:, 0] = self.external
+        if K:
+            F = terms[:, 1:K + 1, :3]
+            np.divide(-tensions[..., None] * self.tangent, self.tangent_norm, out=F)
+            arms = self._lever * F[..., _ZXY + _YZX]
+            np.subtract(arms[..., :3], arms[..., 3:], out=terms[:, 1:K + 1, 3:])
         if self.points is not None:
-            n0 = n0 + self.points[:, :3]
-            m0 = m0 + self.points[:, 3:]
-        return np.concatenate(np.broadcast_arrays(n0, m0), axis=1)
+            terms[:, -1] = self.points
+        return np.add.accumulate(terms, axis=1)[:, -1]
 
 
 def _pad(a: np.ndarray, shape_min: tuple) -> np.ndarray:
@@ -331,7 +342,7 @@ def make_control(kern, dev: Device, tau: np.ndarray, n_slots: int):
     stick-slip memory (b, S, K), off and zero until set (``set_command``, ``set_memory``)."""
     b, K = tau.shape
     ct = kern.Control()
-    ct.tau = dev.array(_pad(tau, (1,)))
+    ct.tau = dev.array(pad_tensions(tau))
     shape = (b, K) if kern.tstate else (1, 1)
     ct.avail = dev.array(np.zeros(shape))
     ct.slip = dev.array(np.ones(shape))
@@ -343,8 +354,9 @@ def make_control(kern, dev: Device, tau: np.ndarray, n_slots: int):
     return ct
 
 
-def set_tensions(dev: Device, ct, tau: np.ndarray) -> None:
-    dev.put(ct.tau, _pad(tau, (1,)))
+def pad_tensions(tau: np.ndarray) -> np.ndarray:
+    """Tensions (b, K) as the Control's ``tau`` holds them (a zero column where K = 0)."""
+    return _pad(tau, (1,))
 
 
 def make_step(kern, dev: Device, b: int, n_slots: int, dynamic: bool):

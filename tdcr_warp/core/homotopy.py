@@ -49,11 +49,12 @@ def continuation_steps(x0: np.ndarray, minimum: int) -> tuple[np.ndarray, np.nda
     load and the axial compression in Euler loads (sqrt(P L^2 / EI)). Returns (finite, large,
     steps) per rod."""
     with np.errstate(all="ignore"):  # absurd inputs overflow: those rods are flagged anyway
-        load = np.linalg.norm(x0[:, 3:6], axis=1) + np.linalg.norm(x0[:, :2], axis=1)
+        m, nxy = x0[:, 3:6], x0[:, :2]
+        load = np.sqrt(np.add.reduce(m * m, axis=1)) + np.sqrt(np.add.reduce(nxy * nxy, axis=1))  # np.linalg.norm's sums
         compression = np.sqrt(np.abs(x0[:, 2]))
         finite = np.isfinite(load) & np.isfinite(compression)
         hard = np.where(finite, np.maximum(load, compression), 0.0)
-    steps = np.clip(np.ceil(hard), minimum, MAX_CONTINUATION).astype(np.int64)
+    steps = np.minimum(np.maximum(np.ceil(hard), minimum), MAX_CONTINUATION).astype(np.int64)
     return finite, load > LARGE_LOAD, steps
 
 

@@ -27,10 +27,11 @@ from tdcr_warp.core.build import (
     make_step,
     make_work,
     pack_tendons,
+    pad_tensions,
     put_model,
     scene_features,
-    set_tensions,
 )
+from tdcr_warp.core.launch import Mirror, Replay
 from tdcr_warp.kernels import layout
 from tdcr_warp.kernels.history import make_history_kernels
 from tdcr_warp.kernels.shooting import make_shooting_kernels
@@ -113,6 +114,8 @@ class Shooting:
     (the state at the nodes of the last accepted trial) and ``newton`` (unknowns x, Jacobian J,
     status, iterations, integrations, residual, and the scratch of the iteration). ``probe``
     integrates outside the Newton loop (``Probes``); ``loop`` runs that loop (``NewtonLoop``).
+    Its launches are recorded once and replayed (tdcr_warp.core.launch.Replay), and its own arrays
+    are read and written on the host through ``host`` (a Mirror each).
     """
 
     def __init__(self, tables: Tables, lo: int, hi: int, tau: np.ndarray, *, precision: str, integrator: str,
@@ -133,29 +136,39 @@ class Shooting:
         self.x_in = wp.zeros(b, dtype=k.vecu, device=device)  # host-given starts
         self.mask = wp.zeros(b, dtype=int, device=device)
         self.all_rods = wp.ones(b, dtype=int, device=device)
+        self._mirrors: dict[int, Mirror] = {}
         self.loop = NewtonLoop(k, device, b, _fused(driver, device))
         self.probe = Probes(self)
+        self._evaluate = Replay(k.evaluate, b, device)
         # statics: the first Jacobian of a Broyden solve from probes over double steps, where that
         # stays accurate (RK4, error ~h^4, on a fine enough grid; Broyden corrects the rest)
         self.coarse_allowed = int(not dynamic and integrator == "rk4" and n1 - 1 >= COARSE_MIN_NODES)
         self.coarse_jacobian = self.coarse_allowed
         _load_solver_kernels(k, self.loop.fused, dynamic, device)  # before threads race to it
 
+    def host(self, arr: wp.array) -> Mirror:
+        """The Mirror of one of this problem's own arrays (made on first use; arrays that a caller
+        swaps in, such as a load path's tables, go through ``dev.put``)."""
+        m = self._mirrors.get(id(arr))
+        if m is None or m.arr is not arr:
+            m = self._mirrors[id(arr)] = Mirror(arr, self.dev.ndtype)
+        return m
+
     def set_tensions(self, tau: np.ndarray) -> None:
-        set_tensions(self.dev, self.control, tau)
+        self.host(self.control.tau).put(pad_tensions(tau))
 
     def set_command(self, tau: np.ndarray, avail: np.ndarray | None = None) -> None:
         """Tensions (b, K) [N] and, under displacement control, the unstretched length the motor
         gives each displaced tendon (b, K) [m]."""
         self.set_tensions(tau)
         if avail is not None and self.kern.tstate:
-            self.dev.put(self.control.avail, avail - self.tendon_len)  # the kernels' lengths are less l
+            self.host(self.control.avail).put(avail - self.tendon_len)  # the kernels' lengths are less l
 
     def set_taut(self, taut: np.ndarray) -> None:
         """Which displaced tendons are taut (b, K) bool: their unknown is a tension; the others
         are slack (zero tension; the unknown measures the slack)."""
         if self.kern.tstate:
-            self.dev.put(self.control.taut, taut.astype(np.int32))
+            self.host(self.control.taut).put(taut)
 
     def set_memory(self, slip: np.ndarray, profile: np.ndarray | None) -> None:
         """Friction: slip directions (b, K) in [-1, 1] and, for a stick-slip solve, the previous
@@ -165,18 +178,17 @@ class Shooting:
         if not self.kern.friction:
             return
         ct, K = self.control, self.kern.K
-        self.dev.put(ct.slip, slip)
+        self.host(ct.slip).put(slip)
         ct.stick = int(profile is not None)
         if profile is not None:
-            self.dev.put(ct.tau_old, profile[..., :K])
-            self.dev.put(ct.dtau_old, profile[..., K:2 * K])
+            self.host(ct.tau_old).put(profile[..., :K])
+            self.host(ct.dtau_old).put(profile[..., K:2 * K])
         self.coarse_jacobian = self.coarse_allowed if profile is None else 0
 
     def evaluate(self, x: np.ndarray) -> None:
         """One integration per rod from scaled unknowns x (b, nu), storing shapes and slots."""
-        self.dev.put(self.x_in, x)
-        wp.launch(self.kern.evaluate, dim=self.b, device=self.device,
-                  inputs=[self.model, self.control, self.step, self.x_in, self.nodes, *self.probe.out, 1])
+        self.host(self.x_in).put(x)
+        self._evaluate(self.model, self.control, self.step, self.x_in, self.nodes, *self.probe.out, 1)
 
     def solve(self, start=None, *, tol: float, max_iter: int, max_step: float, broyden: bool,
               mask: np.ndarray | None = None, fresh_jacobian: bool = True) -> None:
@@ -190,35 +202,36 @@ class Shooting:
         elif isinstance(start, wp.array):
             x_from = start
         else:
-            self.dev.put(self.x_in, start)
+            self.host(self.x_in).put(start)
             x_from = self.x_in
         if mask is None:
             m = self.all_rods
         else:
-            self.dev.put(self.mask, np.asarray(mask, dtype=np.int32))
+            self.host(self.mask).put(mask)
             m = self.mask
         newton = [self.dev.wdtype(tol), int(max_iter), self.dev.wdtype(max_step), int(broyden)]
         self.loop.run(self, x_from, m, newton, fresh_jacobian)
 
     def counts(self) -> tuple[np.ndarray, np.ndarray]:
         """Newton iterations and integrations of every rod's last solve, (b,) int64 host copies."""
-        return self.newton.iters.numpy().astype(np.int64), self.newton.n_shoot.numpy().astype(np.int64)
+        return self.host(self.newton.iters).get(np.int64), self.host(self.newton.n_shoot).get(np.int64)
 
     def set_counts(self, iters: np.ndarray, shots: np.ndarray) -> None:
         """Report these iterations and integrations (a rod's sums over several solves)."""
-        self.dev.put(self.newton.iters, iters)
-        self.dev.put(self.newton.n_shoot, shots)
+        self.host(self.newton.iters).put(iters)
+        self.host(self.newton.n_shoot).put(shots)
 
     def status(self) -> np.ndarray:
-        return self.newton.status.numpy()
+        """(b,) the status bits of every rod's last solve (a host copy)."""
+        return self.host(self.newton.status).get()
 
     def converged(self) -> np.ndarray:
-        return (self.newton.status.numpy() & layout.CONVERGED) != 0
+        return (self.host(self.newton.status).peek() & layout.CONVERGED) != 0
 
     def tendon_table(self) -> np.ndarray:
         """(b, K, layout.TO_WIDTH) float64 per tendon from the last stored evaluation, lengths in
         full (the kernels keep them less the tendon's arc length)."""
-        td = self.nodes.tend.numpy().astype(np.float64)
+        td = self.host(self.nodes.tend).get(np.float64)
         for col in (layout.TO_PATH, layout.TO_FREE):
             td[..., col] += self.tendon_len
         return td
@@ -227,21 +240,21 @@ class Shooting:
         """Host copies (float64) of the solution and the outcome of every rod (with tendon states
         also ``tendons`` (b, K, layout.TO_WIDTH), ``tension_nodes`` (b, N+1, K) and with friction
         ``tension_slots`` (b, S, 3K))."""
-        f64 = np.float64
+        f64, get = np.float64, self.host
         nw, out = self.newton, self.nodes
-        status = nw.status.numpy().copy()
+        status = get(nw.status).get()
         extra = {}
         if self.kern.tstate:
-            extra = {"tendons": self.tendon_table(), "tension_nodes": out.taun.numpy().astype(f64)}
+            extra = {"tendons": self.tendon_table(), "tension_nodes": get(out.taun).get(f64)}
         if self.kern.friction:
-            extra["tension_slots"] = self.step.tprof.numpy().astype(f64)
+            extra["tension_slots"] = get(self.step.tprof).get(f64)
         return extra | {
-            "positions": out.p.numpy().astype(f64), "rotations": out.R.numpy().astype(f64),
-            "n": out.n.numpy().astype(f64), "m": out.m.numpy().astype(f64),
-            "x": nw.x.numpy().astype(f64), "converged": (status & layout.CONVERGED) != 0,
-            "status": status, "iterations": nw.iters.numpy().copy(), "integrations": nw.n_shoot.numpy().copy(),
-            "residual": nw.resnorm.numpy().astype(f64), "orthogonality_error": out.orth.numpy().astype(f64),
-            "jacobian": nw.J.numpy().astype(f64),
+            "positions": get(out.p).get(f64), "rotations": get(out.R).get(f64),
+            "n": get(out.n).get(f64), "m": get(out.m).get(f64),
+            "x": get(nw.x).get(f64), "converged": (status & layout.CONVERGED) != 0,
+            "status": status, "iterations": get(nw.iters).get(), "integrations": get(nw.n_shoot).get(),
+            "residual": get(nw.resnorm).get(f64), "orthogonality_error": get(out.orth).get(f64),
+            "jacobian": get(nw.J).get(f64),
         }
 
 
@@ -253,30 +266,33 @@ class NewtonLoop:
 
     def __init__(self, kern, device, b: int, fused: bool):
         self.kern, self.device, self.b, self.fused = kern, device, b, fused
+        if fused:
+            self.solve = Replay(kern.solve, b, device)
+        else:
+            self.begin, self.finish = Replay(kern.begin, b, device), Replay(kern.finish, b, device)
+            self.probe, self.update = Replay(kern.probe, b * kern.width, device), Replay(kern.update, b, device)
 
     def run(self, sh: Shooting, x_from: wp.array, mask: wp.array, newton: list, fresh_jacobian: bool) -> None:
         """Newton for the rods of ``sh`` in ``mask`` (device int per rod) from the unknowns ``x_from``;
         newton = [tol, max_iter, max_step, broyden] in the kernels' types."""
-        k, nw = self.kern, sh.newton
+        nw = sh.newton
         if self.fused:
-            wp.launch(k.solve, dim=self.b, device=self.device,
-                      inputs=[sh.model, sh.control, sh.step, nw, sh.nodes, x_from, int(fresh_jacobian),
-                              *newton, sh.coarse_jacobian, mask])
+            self.solve(sh.model, sh.control, sh.step, nw, sh.nodes, x_from, int(fresh_jacobian), *newton,
+                       sh.coarse_jacobian, mask)
             return
         nw.n_active.zero_()
-        wp.launch(k.begin, dim=self.b, device=self.device, inputs=[nw, x_from, int(fresh_jacobian), mask])
+        self.begin(nw, x_from, int(fresh_jacobian), mask)
         self._iterate(sh, newton)
-        wp.launch(k.finish, dim=self.b, device=self.device, inputs=[sh.model, sh.control, sh.step, nw, sh.nodes, mask])
+        self.finish(sh.model, sh.control, sh.step, nw, sh.nodes, mask)
 
     def _iterate(self, sh: Shooting, newton: list) -> None:
         """Iterations with a thread per (rod, probe); no host read inside a block (graph-capturable)."""
-        k, nw, max_iter = self.kern, sh.newton, newton[1]
+        nw, max_iter = sh.newton, newton[1]
 
         def iteration():
-            wp.launch(k.probe, dim=self.b * k.width, device=self.device,
-                      inputs=[sh.model, sh.control, sh.step, nw, sh.nodes, newton[3], sh.coarse_jacobian])
+            self.probe(sh.model, sh.control, sh.step, nw, sh.nodes, newton[3], sh.coarse_jacobian)
             nw.n_active.zero_()
-            wp.launch(k.update, dim=self.b, device=self.device, inputs=[sh.model, nw, *newton, sh.coarse_jacobian])
+            self.update(sh.model, nw, *newton, sh.coarse_jacobian)
 
         for done in range(0, max_iter, CHECK_EVERY):
             for _ in range(min(CHECK_EVERY, max_iter - done)):
@@ -292,6 +308,7 @@ class Probes:
 
     def __init__(self, sh: Shooting):
         self.sh = sh
+        self.launch = Replay(sh.kern.evaluate, sh.b, sh.device)
 
     @functools.cached_property
     def out(self) -> tuple[wp.array, wp.array, wp.array]:
@@ -318,13 +335,12 @@ class Probes:
         ``m`` (b, N+1, ...)."""
         sh = self.sh
         out = self.nodes
-        sh.dev.put(sh.x_in, x)
-        wp.launch(sh.kern.evaluate, dim=sh.b, device=sh.device,
-                  inputs=[model or sh.model, sh.control, sh.step, sh.x_in, out, *self.out, int(shapes)])
+        sh.host(sh.x_in).put(x)
+        self.launch(model or sh.model, sh.control, sh.step, sh.x_in, out, *self.out, int(shapes))
         f64 = np.float64
-        res, p, R = (a.numpy().astype(f64) for a in self.out)
+        res, p, R = (sh.host(a).get(f64) for a in self.out)
         got = {"res": res, "p": p, "R": R}
         if shapes:
-            got |= {"P": out.p.numpy().astype(f64), "Rn": out.R.numpy().astype(f64), "n": out.n.numpy().astype(f64),
-                    "m": out.m.numpy().astype(f64)}
+            got |= {"P": sh.host(out.p).get(f64), "Rn": sh.host(out.R).get(f64), "n": sh.host(out.n).get(f64),
+                    "m": sh.host(out.m).get(f64)}
         return got

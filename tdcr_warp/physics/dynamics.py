@@ -18,6 +18,7 @@ import warp as wp
 
 from tdcr_warp.core.build import Tables
 from tdcr_warp.core.homotopy import added_damping, retry, tension_increment
+from tdcr_warp.core.launch import Replay
 from tdcr_warp.core.parallel import parallel, split
 from tdcr_warp.core.progress import Progress
 from tdcr_warp.core.solver import Shooting
@@ -223,7 +224,7 @@ class Simulator:
         self._tau_prev = tau
         if self.tables.features.friction:
             self.last_slip, self.slip = self.slip, self._slip()
-        ok, status, iters, resid = (np.concatenate(x) for x in zip(*parts))
+        ok, status, iters, resid = parts[0] if len(parts) == 1 else (np.concatenate(x) for x in zip(*parts))
         newly_failed = self.alive & ~ok
         self.failed_step[newly_failed] = self.steps_done
         self.alive &= ok
@@ -240,7 +241,7 @@ class Simulator:
 
     def _read_tips(self) -> None:
         tips = [c.tips() for c in self.parts]
-        self.tip_position, self.tip_velocity, self.tip_acceleration = (
+        self.tip_position, self.tip_velocity, self.tip_acceleration = tips[0] if len(tips) == 1 else (
             np.concatenate([t[j] for t in tips]) for j in range(3))
 
     def tip_state(self) -> dict[str, np.ndarray]:
@@ -402,6 +403,7 @@ class _Chunk:
                                                                 for _ in range(4)]
         self.newton = dict(tol=o.tolerance, max_iter=o.max_iter, max_step=o.max_step,
                            broyden=o.jacobian == "broyden")
+        self._end = Replay(self.hk.end_step, sh.b, sim.dev)
         sh.evaluate(x0)  # c0 = 0, empty history: the static slots
         wp.copy(sh.newton.x, sh.x_in)
         self._end_step(at_rest=True)
@@ -409,12 +411,12 @@ class _Chunk:
 
     def _end_step(self, at_rest: bool = False) -> None:
         sh, out = self.sh, self.sh.nodes
-        wp.launch(self.hk.end_step, dim=sh.b, device=self.sim.dev,
-                  inputs=[sh.step.ycur, self.yprev, sh.step.hist, out.p, out.R, out.q, self.ok, *self.sim.coef,
-                          int(at_rest), *self.tip, sh.newton.x, self.x_prev, self.x_start])
+        self._end(sh.step.ycur, self.yprev, sh.step.hist, out.p, out.R, out.q, self.ok, *self.sim.coef, int(at_rest),
+                  *self.tip, sh.newton.x, self.x_prev, self.x_start)
 
     def tips(self):
-        return [a.numpy().astype(np.float64) for a in self.tip[:3]]
+        """Host copies of the tip position, velocity and acceleration (b, 3) each."""
+        return [self.sh.host(a).get(np.float64) for a in self.tip[:3]]
 
     def step(self, tau: np.ndarray, tau_prev: np.ndarray, alive: np.ndarray, first: bool, avail: np.ndarray | None,
              slip: np.ndarray | None):
@@ -432,11 +434,11 @@ class _Chunk:
         failed = alive & ~sh.converged()
         if failed.any():
             self._retry(failed, tau, tau_prev, avail)
-        status = sh.status().copy()
+        status = sh.status()
         ok = ((status & layout.CONVERGED) != 0) & alive
-        sh.dev.put(self.ok, ok)
+        sh.host(self.ok).put(ok)
         self._end_step()
-        return ok, status, sh.newton.iters.numpy().copy(), sh.newton.resnorm.numpy().astype(np.float64)
+        return ok, status, sh.host(sh.newton.iters).get(), sh.host(sh.newton.resnorm).get(np.float64)
 
     def _retry(self, failed: np.ndarray, tau: np.ndarray, tau_prev: np.ndarray, avail: np.ndarray | None) -> None:
         """The rods ``failed`` (b,) of this step solved again: a homotopy in the tension increment,
