@@ -81,10 +81,11 @@ def allocate(Bc: np.ndarray, v: np.ndarray, tau_max: np.ndarray, tau0: np.ndarra
     g = np.einsum("bik,bi->bk", Bc, v)
     tau = np.clip(tau0, 0.0, tau_max).copy()
     diag = np.einsum("bkk->bk", Q)
+    columns = [(Q[:, k], g[:, k], diag[:, k], tau_max[:, k], tau[:, k]) for k in range(K)]  # views, taken once
     for _ in range(sweeps):
-        for k in range(K):
-            r = g[:, k] - np.einsum("bl,bl->b", Q[:, k], tau) + diag[:, k] * tau[:, k]
-            tau[:, k] = np.clip(r / diag[:, k], 0.0, tau_max[:, k])
+        for q, gk, dk, hi, tk in columns:
+            r = gk - np.einsum("bl,bl->b", q, tau) + dk * tk
+            tk[...] = np.minimum(np.maximum(r / dk, 0.0), hi)  # np.clip's arithmetic, without its wrapper
     return tau
 
 
