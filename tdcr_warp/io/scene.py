@@ -32,10 +32,12 @@ from tdcr_warp.model.robot import (
 from tdcr_warp.model.schema import REQUIRED, SCHEMA, TOP_TABLES, Key, Table, location
 from tdcr_warp.model.tippath import path_from_table
 
-__all__ = ["DynamicsSpec", "Fields", "Scene", "load_scene", "scene_from_dict", "search_options"]
+__all__ = ["DynamicsSpec", "Fields", "Scene", "load_scene", "read_rows", "scene_from_dict", "search_options"]
 
 # the gains a search ranges over: control.<gain_c|gain_k|gain_i> (every component, or [c] one), epsilon, phi
 SEARCH_GAINS = re.compile(r"control\.(?:(?:gain_c|gain_k|gain_i)(?:\[[0-2]\])?|epsilon|phi)")
+ROW_KEYS = ("tensions", "displacements", "slip")  # the [actuation] keys that may name a per-rod table file
+TABLE_FILES = (".npy", ".csv", ".parquet")
 MAX_DEPTH = 16  # tables and lists nested deeper than any scene needs (a handful) are refused
 SCENE = Table("scene", "A scene: its tables.", tuple(Key(name, "tables" if SCHEMA[name].array else "table", "-",
                                                         SCHEMA[name].meaning) for name in TOP_TABLES))
@@ -98,10 +100,107 @@ def load_scene(path) -> Scene:
     except RecursionError:  # tomllib parses nested arrays and inline tables recursively
         raise InputError(f"{path}: invalid TOML: arrays or inline tables nested too deeply to parse (a scene "
                          f"takes at most {MAX_DEPTH} levels)") from None
+    _resolve_files(data, path.absolute().parent)
     try:
         return replace(scene_from_dict(data), text=text)
     except InputError as e:
         raise InputError(f"{path}: {e}") from None
+
+
+def _resolve_files(data: dict, folder: Path) -> None:
+    """Make the file names of the per-rod tables ([actuation].tensions, .displacements, .slip and
+    [[actuation.steps]].tensions) absolute, relative to the scene's folder: the scene's ``source``
+    then rebuilds it from anywhere (sweeps, search, fit)."""
+    act = data.get("actuation")
+    if not isinstance(act, dict):
+        return
+    steps = act.get("steps")
+    for table, keys in [(act, ROW_KEYS)] + [(e, ("tensions",)) for e in (steps if isinstance(steps, list) else ())
+                                             if isinstance(e, dict)]:
+        for key in keys:
+            if isinstance(table.get(key), str):
+                table[key] = str(folder / Path(table[key]).expanduser())
+
+
+def _rows(table: Fields, key: str) -> tuple[object, str]:
+    """(the value of the "rows" key ``key``, its name for errors): the numbers the scene gives,
+    or the table read from the file it names (read_rows; the name then says which file)."""
+    value, where = table.get(key), f"{table.where}.{key}"
+    if not isinstance(value, str):
+        return value, where
+    return read_rows(value, key, where), f"{where} ({Path(value).name!r})"
+
+
+def read_rows(path, key: str, where: str) -> np.ndarray:
+    """A per-rod table from a file, one row per rod: ``.npy`` (an array of numbers, (B, K) or
+    (K,)), ``.csv`` (comma-separated numbers, one line per rod, an optional header line) or
+    ``.parquet``. A CSV or Parquet table with columns ``key[0]``, ``key[1]``, ... (as
+    ``tdcr-warp static`` writes them into rods.parquet) gives those, in order; otherwise every
+    column, in order. Every problem is an InputError naming ``where``, the file and what is wrong."""
+    path = Path(path)
+    what = f"{where} = {str(path)!r}"
+    if path.suffix.lower() not in TABLE_FILES:
+        raise InputError(f"{what}: a per-rod table file must end in {', '.join(TABLE_FILES)}")
+    try:
+        if path.suffix.lower() == ".npy":
+            table = np.load(path, allow_pickle=False)
+        elif path.suffix.lower() == ".csv":
+            table = _csv_rows(path, key)
+        else:
+            table = _parquet_rows(path, key)
+    except OSError as e:
+        raise InputError(f"{what}: cannot read the file: {e.strerror or e}") from None
+    except ValueError as e:
+        raise InputError(f"{what}: {e}") from None
+    if table.dtype.kind not in "iuf" or table.ndim not in (1, 2) or table.size == 0:
+        raise InputError(f"{what}: expected a (B, K) table of numbers, got shape {table.shape} of {table.dtype}")
+    return table
+
+
+def _columns(names: list[str], key: str) -> list[int]:
+    """The columns of a CSV or Parquet table that hold ``key``: key[0], key[1], ... when present."""
+    mine = [f"{key}[{k}]" for k in range(len(names)) if f"{key}[{k}]" in names]
+    return [names.index(n) for n in mine] if mine else list(range(len(names)))
+
+
+def _csv_rows(path: Path, key: str) -> np.ndarray:
+    with open(path, encoding="utf-8") as f:
+        first = f.readline()
+    names = [c.strip() for c in first.split(",")]
+    try:
+        [float(c) for c in names]
+        header = False
+    except ValueError:
+        header = True
+    cols = _columns(names, key) if header else None
+    return np.loadtxt(path, delimiter=",", skiprows=int(header), usecols=cols, ndmin=2, dtype=np.float64,
+                      encoding="utf-8")
+
+
+def _parquet_rows(path: Path, key: str) -> np.ndarray:
+    """The table's numeric columns (read from their buffers: Arrow's to_numpy imports pandas)."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    try:
+        f = pq.ParquetFile(path)
+    except pa.ArrowException as e:
+        raise ValueError(f"not a readable Parquet file ({e})") from None
+    names = f.schema_arrow.names
+    chosen = [names[i] for i in _columns(names, key)]
+    table = f.read(columns=chosen, use_pandas_metadata=False)
+    out = np.empty((table.num_rows, len(chosen)))
+    for j, name in enumerate(chosen):
+        col = table.column(name).combine_chunks()
+        kind = "f" if pa.types.is_floating(col.type) else "i" if pa.types.is_signed_integer(col.type) else \
+            "u" if pa.types.is_unsigned_integer(col.type) else None
+        if kind is None:
+            raise ValueError(f"column {name!r} holds {col.type}, not numbers")
+        if col.null_count:
+            raise ValueError(f"column {name!r} has {col.null_count} missing values")
+        values = np.frombuffer(col.buffers()[1], dtype=f"{kind}{col.type.bit_width // 8}")
+        out[:, j] = values[col.offset:col.offset + len(col)]
+    return out
 
 
 def _check_depth(data: dict) -> None:
@@ -228,6 +327,8 @@ class Fields:
 def _checked(value, key: Key, name: str):
     """``value`` checked by ``key``'s type and allowed values (a "number": as a float)."""
     kind = key.type
+    if kind == "rows":
+        return value if isinstance(value, str) else _numbers(value, name)
     if kind == "numbers":
         return _numbers(value, name)
     if kind == "number":
@@ -290,7 +391,7 @@ def _robot(scene: Fields) -> Robot:
 
 def _tensions(act: Fields, robot: Robot) -> np.ndarray:
     """[actuation].tensions as (B, K) [N]."""
-    tensions = check_tensions(robot, act.get("tensions"), "[actuation].tensions")
+    tensions = check_tensions(robot, *_rows(act, "tensions"))
     if robot.batch_size > 1 and tensions.shape[0] != robot.batch_size:
         raise InputError(f"[actuation].tensions: {tensions.shape[0]} rows for {robot.batch_size} rods")
     return tensions
@@ -326,7 +427,7 @@ def _dynamics(dyn: Fields | None, act: Fields, robot: Robot, tensions: np.ndarra
         if not (1 <= start <= steps) or start <= last:
             raise InputError(f"{entry.where}.start must increase and lie in [1, {steps}], got {start}")
         last = start
-        tau = check_tensions(robot, entry.get("tensions"), f"{entry.where}.tensions")
+        tau = check_tensions(robot, *_rows(entry, "tensions"))
         if tau.shape[0] not in (1, tensions.shape[0]):
             raise InputError(f"{entry.where}.tensions: {tau.shape[0]} rows for {tensions.shape[0]} rods")
         schedule[:, start - 1:, :] = tau[:, None, :]
@@ -337,9 +438,11 @@ def _commands(act: Fields, robot: Robot, B: int) -> tuple[np.ndarray | None, np.
     """[actuation].displacements (B, K) [m] and .slip (B, K), None where not given."""
     displacements = slip = None
     if "displacements" in act:
-        displacements = check_displacements(robot, act.get("displacements"), B, "[actuation].displacements")
+        value, name = _rows(act, "displacements")
+        displacements = check_displacements(robot, value, B, name)
     if "slip" in act:
-        slip = check_slip(robot, act.get("slip"), B, "[actuation].slip")
+        value, name = _rows(act, "slip")
+        slip = check_slip(robot, value, B, name)
     return displacements, slip
 
 

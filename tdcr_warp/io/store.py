@@ -28,12 +28,14 @@ import shutil
 import socket
 import time
 from pathlib import Path
+from typing import Self
 
 import numpy as np
 
 from tdcr_warp.model.robot import InputError
 
-__all__ = ["ChunkError", "ChunkStore", "SweepLock", "clear_outputs", "read_manifest", "write_manifest"]
+__all__ = ["ChunkError", "ChunkStore", "SweepLock", "clear_outputs", "read_manifest", "table_columns", "write_manifest",
+           "write_table"]
 
 FORMAT = 1
 MANIFEST = "sweep.json"
@@ -99,7 +101,7 @@ class SweepLock:
         self.stale: dict | None = None
         self._f = None
 
-    def __enter__(self) -> "SweepLock":
+    def __enter__(self) -> Self:
         f = open(self.path, "a+")
         try:
             fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
@@ -150,6 +152,62 @@ def _digest(columns: dict[str, np.ndarray], arrays: dict[str, np.ndarray]) -> st
     return h.hexdigest()
 
 
+def table_columns(res: dict, rows: int) -> tuple[dict[str, np.ndarray], dict[str, int], dict[str, np.ndarray]]:
+    """A per-rod table's columns from ``res`` {key: array with ``rows`` rows}: an array of one
+    axis is the column ``key``, of two axes one column per component (``key[i]``), of more a
+    separate array. Returns (columns, {key: width} of the split ones, the other arrays); an
+    array with another number of rows is a ValueError naming it."""
+    columns: dict[str, np.ndarray] = {}
+    widths, arrays = {}, {}
+    for key, v in res.items():
+        v = np.asarray(v)
+        if v.shape[:1] != (rows,):
+            raise ValueError(f"the job's {key!r} has {v.shape[:1]} rows, expected {rows}")
+        if v.ndim == 1:
+            columns[key] = v
+        elif v.ndim == 2:
+            widths[key] = v.shape[1]
+            columns.update({f"{key}[{i}]": v[:, i] for i in range(v.shape[1])})
+        else:
+            arrays[key] = v
+    return columns, widths, arrays
+
+
+def _arrow(v):
+    """A NumPy array of numbers or bools, or a list of strings (dictionary-encoded), as an Arrow
+    array built from its buffers: pa.array would import pandas when it is installed (0.5-0.7 s)."""
+    import pyarrow as pa
+
+    if isinstance(v, list):
+        words, index = np.unique(np.asarray(v, dtype=str), return_inverse=True)
+        data = [w.encode() for w in words.tolist()]
+        offsets = np.cumsum([0] + [len(d) for d in data], dtype=np.int32)
+        dictionary = pa.Array.from_buffers(pa.string(), len(data), [None, pa.py_buffer(offsets),
+                                                                     pa.py_buffer(b"".join(data))])
+        return pa.DictionaryArray.from_arrays(_arrow(index.ravel().astype(np.int32)), dictionary)
+    v = np.ascontiguousarray(v)
+    if v.dtype == bool:
+        return pa.Array.from_buffers(pa.bool_(), len(v), [None, pa.py_buffer(np.packbits(v, bitorder="little"))])
+    return pa.Array.from_buffers(pa.from_numpy_dtype(v.dtype), len(v), [None, pa.py_buffer(v)])
+
+
+def write_table(path: Path, columns: dict, meta: dict) -> None:
+    """One Parquet file of ``columns`` (NumPy arrays of one axis, or lists of strings), with
+    ``meta`` as JSON under the schema metadata key ``tdcr_warp``; written to a temporary file
+    and renamed."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    table = pa.Table.from_arrays([_arrow(v) for v in columns.values()], names=list(columns))
+    table = table.replace_schema_metadata({"tdcr_warp": json.dumps(meta)})
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    try:  # dictionary pages for the strings only: for numbers they cost 2.5x the time and save nothing
+        pq.write_table(table, tmp, use_dictionary=[k for k, v in columns.items() if isinstance(v, list)])
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
 class ChunkStore:
     """The parts of one sweep in ``out``: writes (from the driver or a Ray worker) and checked
     reads. Picklable: a Ray task gets it and writes its own chunk."""
@@ -171,35 +229,20 @@ class ChunkStore:
         """Write chunk c: ``res`` the job's per-rod arrays, ``samples`` its sample rows. Arrays
         of one or two axes become columns (``key`` or ``key[i]``), the others Zarr rows.
         Returns the number of rods that failed (``ok`` false)."""
-        import pyarrow as pa
-        import pyarrow.parquet as pq
-
         lo, hi = self.bounds(c)
-        columns: dict[str, np.ndarray] = {"row": np.arange(lo, hi, dtype=np.int64)}
-        widths, arrays = {}, {}
-        for key, v in res.items():
-            v = np.asarray(v)
-            if v.shape[:1] != (hi - lo,):
-                raise ChunkError(f"chunk {c}: the job's {key!r} has {v.shape[:1]} rows, expected {hi - lo}")
-            if v.ndim == 1:
-                columns[key] = v
-            elif v.ndim == 2:
-                widths[key] = v.shape[1]
-                columns.update({f"{key}[{i}]": v[:, i] for i in range(v.shape[1])})
-            else:
-                arrays[key] = v
+        try:
+            columns, widths, arrays = table_columns(res, hi - lo)
+        except ValueError as e:
+            raise ChunkError(f"chunk {c}: {e}") from None
+        columns = {"row": np.arange(lo, hi, dtype=np.int64)} | columns
         columns.update({f"sample:{k}": np.asarray(v, dtype=np.float64) for k, v in samples.items()})
         if arrays:
             self._write_arrays(lo, hi, arrays)
         meta = {"format": FORMAT, "fingerprint": self.fingerprint, "chunk": c, "lo": lo, "hi": hi, "rows": hi - lo,
                 "widths": widths, "arrays": sorted(arrays), "sha256": _digest(columns, arrays)}
-        table = pa.table({k: np.ascontiguousarray(v) for k, v in columns.items()})
-        table = table.replace_schema_metadata({"tdcr_warp": json.dumps(meta)})
         path = self.part(c)
         path.parent.mkdir(exist_ok=True)
-        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-        pq.write_table(table, tmp)
-        os.replace(tmp, path)
+        write_table(path, columns, meta)
         return int((~np.asarray(res["ok"]).astype(bool)).sum()) if "ok" in res else 0
 
     def _write_arrays(self, lo: int, hi: int, arrays: dict[str, np.ndarray]) -> None:

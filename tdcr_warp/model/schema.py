@@ -8,7 +8,8 @@ list is refused, and the scene reference is written from it::
     python -m tdcr_warp.model.schema --markdown > docs/reference/scene.md
 
 Types: "number" (int or float), "numbers" (a number or a nested list of numbers: per-rod
-values), "integer", "string", "bool", "strings" (a list of strings), "table", "tables"
+values), "rows" (numbers, or the name of a .npy, .csv or .parquet file holding them: per-rod
+tables too large for TOML), "integer", "string", "bool", "strings" (a list of strings), "table", "tables"
 (an array of tables). Shapes: B rods, K tendons; "(3,) or (B, 3)" is shared or per rod.
 """
 
@@ -19,7 +20,7 @@ from dataclasses import dataclass
 
 __all__ = ["REQUIRED", "SCHEMA", "TOP_TABLES", "Key", "Table", "location", "markdown"]
 
-TYPES = ("number", "numbers", "integer", "string", "bool", "strings", "table", "tables")
+TYPES = ("number", "numbers", "rows", "integer", "string", "bool", "strings", "table", "tables")
 
 
 class _Required:
@@ -141,16 +142,16 @@ _TABLES = (
         Key("force", "numbers", "N", "the force (world frame)", VECTOR, REQUIRED),
     )),
     Table("actuation", "The commands of the statics (and the start of dynamics).", required=True, keys=(
-        Key("tensions", "numbers", "N", "tendon tensions, one row per rod (B rows: B rods), each >= 0", ROWS,
+        Key("tensions", "rows", "N", "tendon tensions, one row per rod (B rows: B rods), each >= 0", ROWS,
             REQUIRED),
-        Key("displacements", "numbers", "m", "motor displacements (pull positive) of tendons under displacement "
+        Key("displacements", "rows", "m", "motor displacements (pull positive) of tendons under displacement "
             "control", ROWS),
-        Key("slip", "numbers", "-", "friction's slip direction per tendon: +1 pulled, -1 released", ROWS),
+        Key("slip", "rows", "-", "friction's slip direction per tendon: +1 pulled, -1 released", ROWS),
         Key("steps", "tables", "-", "a tension schedule for dynamics: [[actuation.steps]]"),
     )),
     Table("actuation.steps", "From step `start` on (until the next entry), these tensions.", array=True, keys=(
         Key("start", "integer", "-", "first step (1-based, increasing, <= [dynamics].steps)", "", REQUIRED),
-        Key("tensions", "numbers", "N", "tendon tensions from that step on", ROWS, REQUIRED),
+        Key("tensions", "rows", "N", "tendon tensions from that step on", ROWS, REQUIRED),
     )),
     Table("solver", "The static solver (StaticOptions; a preset first, the other keys override it).", keys=(
         Key("preset", "string", "-", "named settings", default=None, allowed=("fast", "balanced", "accurate")),
@@ -337,7 +338,9 @@ def markdown() -> str:
              ("A scene is a TOML file (SI units). A robot number may be a list of B numbers and a vector a list of "
               "B vectors: per-rod values for a batch of B rods; K is the number of tendons. A key the schema does "
               "not list is an error naming the table, the key and its value."), "",
-             ("Types: *number*; *numbers*: a number or a (nested) list of numbers, of the shape given; *integer*; "
+             ("Types: *number*; *numbers*: a number or a (nested) list of numbers, of the shape given; *rows*: "
+              "numbers, or the name of a `.npy`, `.csv` or `.parquet` file that holds them (relative to the scene "
+              "file's folder; [Outputs: per-rod tables as input](../outputs.md#per-rod-tables-as-input)); *integer*; "
               "*string*; *bool* (true or false); *strings*: a list of strings; *table*; *tables*: an array of "
               "tables. A key \"only with\" another key's value is an error elsewhere; \"required\" there means "
               "required where it applies."), ""]
