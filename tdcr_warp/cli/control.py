@@ -19,8 +19,8 @@ from tdcr_warp.cli.common import (
     apply_overrides,
     out_dir,
     settings,
+    write_arrays,
     write_json,
-    write_npz,
 )
 from tdcr_warp.model.robot import InputError
 
@@ -59,7 +59,7 @@ def run(args) -> int:
         print(f"  rod {b}: final error {metrics['final_error'][b] * 1e3:.3f} mm, settling "
               f"{metrics['settling_time'][b]:.3f} s, chatter {metrics['chatter'][b]:.2e} N, "
               f"mean tension {np.round(metrics['mean_tension'][b], 3).tolist()} N")
-    write_npz(out / "control.npz", loop.to_npz)
+    write_arrays(out / "control.npz", loop)
     plot_control(loop, out, tension_max=controller.tau_max, gain_c=controller.C)
     if args.animate:
         animate(scene, loop, sim.grid, out)

@@ -19,8 +19,8 @@ from tdcr_warp.cli.common import (
     out_dir,
     print_rods,
     settings,
+    write_arrays,
     write_json,
-    write_npz,
 )
 from tdcr_warp.model.robot import InputError
 
@@ -62,7 +62,7 @@ def run(args) -> int:
           f"kernel loading and the {t1 - t0:.2f} s static start excluded)")
     reasons = ["ok" if f < 0 else f"failed at step {f + 1}" for f in traj.failed_step]
     print_rods(traj.tip_position[-1], ok, traj.iterations.max(axis=0), traj.residual[-1], reasons)
-    write_npz(out / "trajectory.npz", traj.to_npz)
+    write_arrays(out / "trajectory.npz", traj)
     if not args.no_figures:
         from tdcr_warp.io.plotting import plot_tip_history
         plot_tip_history(traj.time, traj.tip_position, traj.tip_velocity, traj.tip_acceleration, out)

@@ -1,11 +1,15 @@
-"""``tdcr-warp static SCENE.toml``: the statics of a scene; results.json, shapes.npz, shapes.png
-and (--html) robot.html."""
+"""``tdcr-warp static SCENE.toml``: the statics of a scene; results.json (a summary, and per rod
+for batches of at most JSON_RODS rods), rods.parquet (the per-rod table of larger batches),
+shapes.npz (every array of the solution), shapes.png and (--html) robot.html."""
 
 from __future__ import annotations
 
 import sys
 import time
+from collections import Counter
 from pathlib import Path
+
+import numpy as np
 
 from tdcr_warp.cli.common import (
     add_command,
@@ -18,10 +22,13 @@ from tdcr_warp.cli.common import (
     out_dir,
     print_rods,
     settings,
+    write_arrays,
     write_atomic,
     write_json,
-    write_npz,
 )
+
+ROD_TABLE = "rods.parquet"
+JSON_RODS = 100  # batches up to this size per rod into results.json, larger ones into ROD_TABLE
 
 
 def register(subparsers) -> None:
@@ -34,10 +41,11 @@ def register(subparsers) -> None:
 
 def run(args) -> int:
     from tdcr_warp.io.scene import load_scene
-    from tdcr_warp.model.options import failure_reasons
     from tdcr_warp.physics.statics import solve_static
 
+    t0 = time.perf_counter()
     scene = apply_overrides(load_scene(args.scene), args)
+    scene_s = time.perf_counter() - t0
     out = out_dir(args, Path("out") / Path(args.scene).stem, "results.json")
     load_s = load_kernels(scene, args)
     t0 = time.perf_counter()
@@ -45,18 +53,81 @@ def run(args) -> int:
                        **scene.static_command())
     wall = time.perf_counter() - t0
     B = len(sol.converged)
-    reasons = sol.failure_reasons()
+    reasons = _status_words(sol.status)
     print(f"solved {B} rod(s) in {wall:.3f} s ({B / wall:,.0f} rods/s, kernel loading excluded; "
           f"{scene.options.integrator}, N = {scene.options.nodes}, {scene.options.model}, {scene.options.precision})")
     print_rods(sol.tip_position, sol.converged, sol.iterations, sol.residual, reasons)
-    write_npz(out / "shapes.npz", sol.to_npz)
+    t0 = time.perf_counter()
+    small = B <= JSON_RODS
+    files = {"shapes.npz": write_arrays(out / "shapes.npz", sol)}
+    if small:
+        (out / ROD_TABLE).unlink(missing_ok=True)  # an earlier, larger run's
+    else:
+        files[ROD_TABLE] = _write_rod_table(out / ROD_TABLE, scene, sol, reasons)
+    write_s = time.perf_counter() - t0
     if not args.no_figures:
         _plot(scene, sol, out)
     if args.html:
         _html(scene, sol, out)
+    failed = ~sol.converged
     results = {
         "scene": str(args.scene), "settings": settings(scene, args.device or "default"),
-        "batch_size": B, "wall_time_s": wall, "kernel_load_s": load_s,
+        "batch_size": B, "wall_time_s": wall, "kernel_load_s": load_s, "scene_load_s": scene_s, "write_s": write_s,
+        "converged_rods": B - int(failed.sum()), "failed_rods": int(failed.sum()),
+        "failure_reasons": dict(Counter(reasons[b] for b in np.flatnonzero(failed))), "files": files,
+    } | (_rods_json(sol, reasons) if small else {})
+    write_json(out / "results.json", results)  # last: its presence means the run is complete
+    print(f"wrote {out}/results.json, {', '.join(files)}{'' if args.no_figures else ', shapes.png'}")
+    if failed.any():
+        why = ", ".join(f"{n} x {reason}" for reason, n in results["failure_reasons"].items())
+        print(f"tdcr-warp: {int(failed.sum())} of {B} rods did not converge: {why} (per rod in "
+              f"{'results.json' if small else ROD_TABLE})", file=sys.stderr)
+        return 1
+    return 0
+
+
+def _status_words(status: np.ndarray) -> list[str]:
+    """Each rod's status bits in words (tw.describe_status), worded once per distinct status."""
+    from tdcr_warp.model.options import describe_status
+
+    codes, index = np.unique(status, return_inverse=True)
+    words = [describe_status(c) for c in codes]
+    return [words[i] for i in index.ravel()]
+
+
+def _rod_arrays(scene, sol) -> dict:
+    """The per-rod table's arrays after its first columns (docs/outputs.md: ``rods.parquet``)."""
+    B, K = sol.tendon_tension_base.shape
+    res = {"iterations": sol.iterations, "integrations": sol.integrations, "residual": sol.residual,
+           "orthogonality_error": sol.orthogonality_error, "tip_position": sol.tip_position,
+           "tensions": np.broadcast_to(scene.tensions, (B, K))}
+    if scene.displacements is not None:
+        res["displacements"] = np.broadcast_to(scene.displacements, (B, K))
+    res |= {"tension_base": sol.tendon_tension_base, "tension_end": sol.tendon_tension_end}
+    optional = {"path_length": sol.tendon_path_length, "free_length": sol.tendon_free_length, "slack": sol.slack,
+                "turning": sol.tendon_turning, "slip": sol.slip, "tip_error_estimate": sol.tip_error_estimate,
+                "stability_index": sol.stability_index, "stable": sol.stable, "lagrangian_error": sol.lagrangian_error,
+                "branch": sol.branch, "multiple_stable": sol.multiple_stable}
+    return res | {k: v for k, v in optional.items() if v is not None}
+
+
+def _write_rod_table(path: Path, scene, sol, reasons: list[str]) -> dict:
+    """rods.parquet: one row per rod, a (B, K) array one column per tendon (``key[k]``), as the
+    sweeps' tables. Returns {"rows": B, "columns": {name: type}}."""
+    from tdcr_warp.io.store import table_columns, write_table
+
+    B = len(reasons)
+    rest, widths, _ = table_columns(_rod_arrays(scene, sol), B)
+    columns = {"row": np.arange(B, dtype=np.int64), "converged": sol.converged, "status": sol.status,
+               "status_text": reasons} | rest
+    write_table(path, columns, {"command": "static", "rows": B, "widths": widths})
+    return {"rows": B, "columns": {k: "string" if isinstance(v, list) else str(v.dtype) for k, v in columns.items()}}
+
+
+def _rods_json(sol, reasons: list[str]) -> dict:
+    """The per-rod keys of results.json (batches of at most JSON_RODS rods)."""
+    B = len(sol.converged)
+    return {
         "tip_position": sol.tip_position.tolist(), "converged": sol.converged.tolist(),
         "iterations": sol.iterations.tolist(), "residual": sol.residual.tolist(),
         "rods": [{"tip_position": sol.tip_position[b].tolist(), "tip_rotation": sol.tip_rotation[b].tolist(),
@@ -65,15 +136,6 @@ def run(args) -> int:
                   "orthogonality_error": float(sol.orthogonality_error[b]), "tendons": _tendon_rows(sol, b)}
                  | _sensitivity_row(sol, b) for b in range(B)],
     }
-    write_json(out / "results.json", results)  # last: its presence means the run is complete
-    print(f"wrote {out}/results.json, shapes.npz{'' if args.no_figures else ', shapes.png'}")
-    failed = int((~sol.converged).sum())
-    if failed:
-        why = ", ".join(f"{n} x {reason}" for reason, n in failure_reasons(sol.status, sol.converged).items())
-        print(f"tdcr-warp: {failed} of {B} rods did not converge: {why} (per rod in results.json)",
-              file=sys.stderr)
-        return 1
-    return 0
 
 
 def _sensitivity_row(sol, b: int) -> dict:

@@ -1,0 +1,134 @@
+"""`tdcr-warp static` outputs at every batch size: results.json (a summary; per rod up to
+JSON_RODS rods), rods.parquet (larger batches) and shapes.npz; tests/test_table_files.py reads
+per-rod tables as input."""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pyarrow.parquet as pq
+import pytest
+from scenes import two_tendon_scene
+
+import tdcr_warp as tw
+from tdcr_warp.cli import main
+from tdcr_warp.cli.static import JSON_RODS
+from tdcr_warp.io.scene import load_scene
+
+ROOT = Path(__file__).resolve().parents[1]
+B = JSON_RODS + 28  # above the per-rod JSON: rods.parquet
+TAU = np.random.default_rng(7).uniform(0.0, 2.0, (B, 2))
+
+
+def inline(tau) -> str:
+    return two_tendon_scene("[" + ", ".join(f"[{float(a)!r}, {float(b)!r}]" for a, b in tau) + "]", nodes=8)
+
+
+def from_file(name: str) -> str:
+    return two_tendon_scene(f'"{name}"', nodes=8)
+
+
+def documented(names) -> list[str]:
+    """The names (a column `key[i]` by its `key`) that docs/outputs.md does not mention as `key..."""
+    doc = (ROOT / "docs" / "outputs.md").read_text()
+    return sorted(n for n in names if f"`{n.split('[')[0]}" not in doc)
+
+
+@pytest.fixture(scope="module")
+def large(tmp_path_factory):
+    """A batch of B rods from a .npy table, solved by the command and by the API."""
+    tmp = tmp_path_factory.mktemp("large")
+    np.save(tmp / "tau.npy", TAU)
+    (tmp / "scene.toml").write_text(from_file("tau.npy"))
+    out = tmp / "out"
+    assert main(["static", str(tmp / "scene.toml"), "--out", str(out), "--no-figures"]) == 0
+    scene = load_scene(tmp / "scene.toml")
+    sol = tw.solve_static(scene.robot, scene.tensions, options=scene.options)
+    return tmp, out, sol
+
+
+def test_large_batch_writes_the_table_and_a_summary(large):
+    _, out, sol = large
+    assert sorted(p.name for p in out.iterdir()) == ["results.json", "rods.parquet", "shapes.npz"]
+    res = json.loads((out / "results.json").read_text())
+    assert "rods" not in res and "tip_position" not in res
+    assert (res["batch_size"], res["converged_rods"], res["failed_rods"], res["failure_reasons"]) == (B, B, 0, {})
+    rods = pd.read_parquet(out / "rods.parquet")
+    assert res["files"]["rods.parquet"] == {"rows": B, "columns": {
+        c: "string" if c == "status_text" else str(rods[c].dtype) for c in rods.columns}}
+    assert res["files"]["shapes.npz"]["positions"] == [[B, 9, 3], "float64"]
+    assert not documented([*res, *rods.columns]), documented([*res, *rods.columns])
+    assert rods["row"].tolist() == list(range(B))
+    assert np.array_equal(rods[[f"tip_position[{i}]" for i in range(3)]].to_numpy(), sol.tip_position)
+    assert np.array_equal(rods[["tensions[0]", "tensions[1]"]].to_numpy(), TAU)
+    assert np.array_equal(rods[["tension_base[0]", "tension_base[1]"]].to_numpy(), sol.tendon_tension_base)
+    for key in ("converged", "status", "iterations", "integrations", "residual", "orthogonality_error"):
+        assert np.array_equal(rods[key].to_numpy(), getattr(sol, key)), key
+    assert set(rods["status_text"]) == {"converged"}
+    meta = json.loads(pq.read_schema(out / "rods.parquet").metadata[b"tdcr_warp"])
+    assert meta == {"command": "static", "rows": B, "widths": {"tip_position": 3, "tensions": 2, "tension_base": 2,
+                                                               "tension_end": 2}}
+
+
+def test_shapes_npz_holds_the_solution_uncompressed(large):
+    _, out, sol = large
+    with np.load(out / "shapes.npz") as z:
+        assert {i.compress_type for i in z.zip.infolist()} == {0}  # ZIP_STORED
+        for key in z.files:
+            assert np.array_equal(z[key], getattr(sol, key)), key
+        assert "positions" in z.files and "tendon_tension_end" in z.files
+
+
+def test_the_table_round_trips_as_a_scene_input(large, tmp_path):
+    """rods.parquet's tensions[k] columns, named as the scene's tensions, give the same rods."""
+    _, out, sol = large
+    (tmp_path / "again.toml").write_text(from_file(str(out / "rods.parquet")))
+    scene = load_scene(tmp_path / "again.toml")
+    assert np.array_equal(scene.tensions, TAU)
+    again = tw.solve_static(scene.robot, scene.tensions, options=scene.options)
+    assert np.array_equal(again.tip_position, sol.tip_position)
+
+
+def test_small_batch_stays_json_and_drops_a_stale_table(large, tmp_path):
+    _, out, _ = large
+    small = tmp_path / "small.toml"
+    small.write_text(inline(TAU[:3]))
+    (tmp_path / "o").mkdir()
+    (tmp_path / "o" / "rods.parquet").write_bytes((out / "rods.parquet").read_bytes())  # a larger run's
+    assert main(["static", str(small), "--out", str(tmp_path / "o"), "--no-figures"]) == 0
+    assert sorted(p.name for p in (tmp_path / "o").iterdir()) == ["results.json", "shapes.npz"]
+    res = json.loads((tmp_path / "o" / "results.json").read_text())
+    assert len(res["rods"]) == 3 and list(res["files"]) == ["shapes.npz"]
+    with np.load(tmp_path / "o" / "shapes.npz") as z:
+        assert res["tip_position"] == z["positions"][:, -1].tolist()
+
+
+def test_failed_rods_are_counted_by_reason(tmp_path, capsys):
+    (tmp_path / "s.toml").write_text(inline(TAU) + "max_iter = 1\n")
+    assert main(["static", str(tmp_path / "s.toml"), "--out", str(tmp_path / "o"), "--no-figures"]) == 1
+    res = json.loads((tmp_path / "o" / "results.json").read_text())
+    rods = pd.read_parquet(tmp_path / "o" / "rods.parquet")
+    failed = rods[~rods["converged"]]
+    assert res["failed_rods"] == len(failed) > 0 and res["converged_rods"] == B - len(failed)
+    assert res["failure_reasons"] == failed["status_text"].astype(str).value_counts().to_dict()
+    assert set(failed["status_text"]) == {"iteration cap reached"}
+    assert "(per rod in rods.parquet)" in capsys.readouterr().err
+
+
+def test_optional_columns_hold_the_solution(tmp_path):
+    """Tendon states, the error estimate and the stability verdict: a documented column each."""
+    np.save(tmp_path / "tau.npy", TAU)
+    text = from_file("tau.npy").replace("[solver]", '[solver]\nstability = "stable"\ntendon_states = true\n'
+                                        "error_estimate = true")
+    (tmp_path / "s.toml").write_text(text)
+    assert main(["static", str(tmp_path / "s.toml"), "--out", str(tmp_path / "o"), "--no-figures"]) == 0
+    rods = pd.read_parquet(tmp_path / "o" / "rods.parquet")
+    assert not documented(rods.columns), documented(rods.columns)
+    scene = load_scene(tmp_path / "s.toml")
+    sol = tw.solve_static(scene.robot, scene.tensions, options=scene.options)
+    for column, array in [("free_length[1]", sol.tendon_free_length[:, 1]), ("slack[0]", sol.slack[:, 0]),
+                          ("tip_error_estimate", sol.tip_error_estimate), ("stable", sol.stable),
+                          ("stability_index", sol.stability_index), ("branch", sol.branch),
+                          ("lagrangian_error", sol.lagrangian_error), ("multiple_stable", sol.multiple_stable)]:
+        assert np.array_equal(rods[column].to_numpy(), array), column
