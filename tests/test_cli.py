@@ -293,9 +293,19 @@ def test_ik_table_errors(tmp_path, capsys, edit, message):
 
 
 def test_command_line_defers_figure_and_storage_libraries():
-    """Importing the CLI and building its parser (every command registered) loads no figure, storage
-    or search library: a command imports them when it draws, stores or searches."""
-    heavy = ("matplotlib", "plotly", "pyarrow", "zarr", "tomli_w", "cmaes", "ray", "scipy", "pandas")
-    code = (f"import sys, tdcr_warp.cli as cli; cli.build_parser(); print([m for m in {heavy!r} if m in sys.modules])")
+    """Importing the package loads neither Warp nor a figure library (``tw.solve_static`` and the
+    other names load on first use); importing the CLI and building its parser (every command
+    registered) loads no Warp, figure, storage or search library: a command imports them when it
+    solves, draws, stores or searches."""
+    heavy = ("warp", "matplotlib", "plotly", "pyarrow", "zarr", "tomli_w", "cmaes", "ray", "scipy", "pandas")
+    for code in ("import sys, tdcr_warp", "import sys, tdcr_warp.cli as cli; cli.build_parser()"):
+        code += f"; print([m for m in {heavy!r} if m in sys.modules])"
+        run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+        assert run.stdout.strip() == "[]", code
+
+
+def test_package_names_load_on_first_use_and_warp_stays_quiet():
+    code = ("import sys, tdcr_warp as tw; assert 'warp' not in sys.modules; tw.Robot; import warp; "
+            "print(tw.solve_static.__module__, warp.config.log_level == warp.LOG_WARNING, sorted(set(tw.__all__) - set(dir(tw))))")
     run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
-    assert run.stdout.strip() == "[]"
+    assert run.stdout.split() == ["tdcr_warp.physics.statics", "True", "[]"]

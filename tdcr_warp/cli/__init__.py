@@ -27,16 +27,23 @@ COMMANDS = (static, simulate, control, sweep, search, ik, predict, fit)
 
 def build_parser() -> argparse.ArgumentParser:
     """The ``tdcr-warp`` parser: every command's arguments, and the command's ``run`` as ``args.run``."""
-    import warp as wp
-
-    from tdcr_warp import __version__
-
     ap = argparse.ArgumentParser(prog="tdcr-warp", description="Batched tendon-driven continuum robots on Warp.")
-    ap.add_argument("--version", action="version", version=f"%(prog)s {__version__} (Warp {wp.__version__})")
+    ap.add_argument("--version", action=_Version, nargs=0, help="show the tdcr-warp and Warp versions and exit")
     sub = ap.add_subparsers(dest="command", required=True)
     for command in COMMANDS:
         command.register(sub)
     return ap
+
+
+class _Version(argparse.Action):
+    """--version: the versions, looked up (Warp imported) only when asked."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        import warp
+
+        from tdcr_warp import __version__
+        print(f"{parser.prog} {__version__} (Warp {warp.__version__})")
+        parser.exit()
 
 
 def _on_sigint(signum, frame) -> None:
