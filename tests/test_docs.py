@@ -30,7 +30,7 @@ PAGES = ([p for p in sorted((DOCS / "tutorials").glob("*.md")) if p.name != "ind
 NO_TEST = "<!-- no-test"
 README_MAX_LINES = 200
 FIRST_COMMAND = ("python3 -m venv .venv && .venv/bin/pip install -e . && "
-                 ".venv/bin/tdcr-warp static examples/seed_robot.toml --out out/seed_robot")
+                 ".venv/bin/tdcr-warp warmup && .venv/bin/tdcr-warp static examples/seed_robot.toml --out out/seed_robot")
 CI_LINE = re.compile(r"^python3 -m venv .* pytest")  # the line .ci/run greps and runs
 
 

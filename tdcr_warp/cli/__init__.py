@@ -1,6 +1,7 @@
 """Command line: ``tdcr-warp static|simulate|control|ik SCENE.toml``, the sweeps
 ``tdcr-warp montecarlo|workspace|gain-grid SCENE.toml``, the gain search
-``tdcr-warp search SCENE.toml`` and measured robots ``tdcr-warp fit|predict SCENE.toml DATA.csv``.
+``tdcr-warp search SCENE.toml``, measured robots ``tdcr-warp fit|predict SCENE.toml DATA.csv`` and
+``tdcr-warp warmup`` (this machine's kernels built ahead of use).
 
 One module per command (its ``register(subparsers)``: the arguments; its ``run(args) -> int``:
 the wiring of the layers below), the shared helpers in ``common`` and ``animation``.
@@ -17,12 +18,22 @@ import signal
 import sys
 import threading
 
-from tdcr_warp.cli import control, fit, ik, predict, search, simulate, static, sweep
+from tdcr_warp.cli import (
+    control,
+    fit,
+    ik,
+    predict,
+    search,
+    simulate,
+    static,
+    sweep,
+    warmup,
+)
 from tdcr_warp.core.progress import Progress
 from tdcr_warp.model.robot import InputError
 
 # in the order of the help's list of commands
-COMMANDS = (static, simulate, control, sweep, search, ik, predict, fit)
+COMMANDS = (static, simulate, control, sweep, search, ik, predict, fit, warmup)
 
 
 def build_parser() -> argparse.ArgumentParser:
