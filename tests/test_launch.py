@@ -185,13 +185,19 @@ def _allocate_as_written(Bc, v, tau_max, tau0, sweeps=60):
 
 @pytest.mark.parametrize("B", [1, 5])
 def test_allocation_is_the_arithmetic_as_written(B):
+    """The batch and the one-rod sweeps give the bits of the code as written: at either bound,
+    inside, for a tendon without effect, with an infinite bound and with a NaN command."""
     from tdcr_warp.apps.control import allocate
 
-    rng = np.random.default_rng(B)
-    Bc = rng.normal(0.0, 1.0, (B, 3, 4))
-    Bc[0, :, 2] = 0.0  # a tendon without effect: its coordinate stays where the bound puts it
-    v = rng.normal(0.0, 2.0, (B, 3))
-    tau_max = rng.uniform(0.5, 3.0, (B, 4))
-    tau0 = rng.uniform(-1.0, 4.0, (B, 4))
-    got, want = allocate(Bc, v, tau_max, tau0), _allocate_as_written(Bc, v, tau_max, tau0)
-    assert np.array_equal(got, want) and np.array_equal(np.signbit(got), np.signbit(want))
+    for seed in range(12):
+        rng = np.random.default_rng(seed)
+        Bc = rng.normal(0.0, 1.0, (B, 3, 4))
+        Bc[0, :, 2] = 0.0  # a tendon without effect: its coordinate stays where the bound puts it
+        v = rng.normal(0.0, 2.0, (B, 3))
+        tau_max = rng.uniform(0.5, 3.0, (B, 4))
+        tau_max[-1, 1] = np.inf
+        if seed == 0:
+            v[-1, 0] = np.nan
+        tau0 = rng.uniform(-1.0, 4.0, (B, 4))
+        got, want = allocate(Bc, v, tau_max, tau0), _allocate_as_written(Bc, v, tau_max, tau0)
+        assert np.array_equal(got, want, equal_nan=True) and np.array_equal(np.signbit(got), np.signbit(want))

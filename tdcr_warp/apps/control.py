@@ -29,6 +29,7 @@ Every gain, target and bound is per rod.
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
@@ -81,11 +82,30 @@ def allocate(Bc: np.ndarray, v: np.ndarray, tau_max: np.ndarray, tau0: np.ndarra
     g = np.einsum("bik,bi->bk", Bc, v)
     tau = np.clip(tau0, 0.0, tau_max).copy()
     diag = np.einsum("bkk->bk", Q)
+    if tau.shape[0] == 1:
+        return _sweeps_one_rod(Q, g, diag, tau_max, tau, sweeps)
     columns = [(Q[:, k], g[:, k], diag[:, k], tau_max[:, k], tau[:, k]) for k in range(K)]  # views, taken once
     for _ in range(sweeps):
         for q, gk, dk, hi, tk in columns:
             r = gk - np.einsum("bl,bl->b", q, tau) + dk * tk
-            tk[...] = np.minimum(np.maximum(r / dk, 0.0), hi)  # np.clip's arithmetic, without its wrapper
+            np.clip(r / dk, 0.0, hi, out=tk)
+    return tau
+
+
+def _sweeps_one_rod(Q: np.ndarray, g: np.ndarray, diag: np.ndarray, tau_max: np.ndarray, tau: np.ndarray,
+                    sweeps: int) -> np.ndarray:
+    """``allocate``'s sweeps for a batch of one rod (a control loop's latency), with the batch's
+    arithmetic: each sum of products by the same np.einsum, the rest in Python floats (which round
+    as NumPy's elementwise operations do) and np.clip's rule max(x, 0) then min(x, tau_max), a NaN
+    kept. ``tau`` (1, K) is updated in place and returned."""
+    rows = [(Q[:, k], float(g[0, k]), float(diag[0, k]), float(tau_max[0, k])) for k in range(Q.shape[1])]
+    cur = tau[0].tolist()
+    for _ in range(sweeps):
+        for k, (q, gk, dk, hi) in enumerate(rows):
+            x = (gk - np.einsum("bl,bl->b", q, tau).item() + dk * cur[k]) / dk
+            x = x if x > 0.0 or math.isnan(x) else 0.0
+            x = x if x < hi or math.isnan(x) else hi
+            cur[k] = tau[0, k] = x
     return tau
 
 
