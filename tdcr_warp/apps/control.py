@@ -97,15 +97,19 @@ def _sweeps_one_rod(Q: np.ndarray, g: np.ndarray, diag: np.ndarray, tau_max: np.
     """``allocate``'s sweeps for a batch of one rod (a control loop's latency), with the batch's
     arithmetic: each sum of products by the same np.einsum, the rest in Python floats (which round
     as NumPy's elementwise operations do) and np.clip's rule max(x, 0) then min(x, tau_max), a NaN
-    kept. ``tau`` (1, K) is updated in place and returned."""
+    kept. ``tau`` (1, K) is updated in place and returned. A sweep that changes nothing ends them
+    (every later one would repeat it)."""
     rows = [(Q[:, k], float(g[0, k]), float(diag[0, k]), float(tau_max[0, k])) for k in range(Q.shape[1])]
     cur = tau[0].tolist()
     for _ in range(sweeps):
+        before = cur.copy()
         for k, (q, gk, dk, hi) in enumerate(rows):
             x = (gk - np.einsum("bl,bl->b", q, tau).item() + dk * cur[k]) / dk
             x = x if x > 0.0 or math.isnan(x) else 0.0
             x = x if x < hi or math.isnan(x) else hi
             cur[k] = tau[0, k] = x
+        if cur == before:
+            break
     return tau
 
 
