@@ -1,6 +1,6 @@
-"""`tdcr-warp static` outputs at every batch size: results.json (a summary; per rod up to
-JSON_RODS rods), rods.parquet (larger batches) and shapes.npz; tests/test_table_files.py reads
-per-rod tables as input."""
+"""`tdcr-warp static` and `ik` outputs at every batch size: results.json / ik.json (a summary;
+per rod up to JSON_RODS rods), rods.parquet / ik.parquet (larger batches) and the .npz arrays;
+tests/test_table_files.py reads per-rod tables as input."""
 
 import json
 from pathlib import Path
@@ -132,3 +132,27 @@ def test_optional_columns_hold_the_solution(tmp_path):
                           ("stability_index", sol.stability_index), ("branch", sol.branch),
                           ("lagrangian_error", sol.lagrangian_error), ("multiple_stable", sol.multiple_stable)]:
         assert np.array_equal(rods[column].to_numpy(), array), column
+
+
+def test_ik_large_batch_writes_its_table(large, tmp_path, capsys):
+    """Targets the forward statics reached (and one out of reach): ik.parquet holds what ik.npz does."""
+    _, _, sol = large
+    targets = np.vstack([sol.tip_position, [[0.3, 0.0, 0.2]]])
+    text = from_file("unused.npy").replace('tensions = "unused.npy"', "tensions = [[0.0, 0.0]]")
+    (tmp_path / "s.toml").write_text(text + "[ik]\ntargets = " + repr(targets.tolist()) + "\ntension_max = 4.0\n")
+    assert main(["ik", str(tmp_path / "s.toml"), "--out", str(tmp_path / "o")]) == 1
+    assert "closest point found: ik.parquet" in capsys.readouterr().err
+    res = json.loads((tmp_path / "o" / "ik.json").read_text())
+    assert "rods" not in res and res["reached"] == B and res["reasons"] == {"reached": B, "unreachable": 1}
+    rows = pd.read_parquet(tmp_path / "o" / "ik.parquet")
+    assert not documented([*res, *rows.columns]), documented([*res, *rows.columns])
+    assert set(res["files"]) == {"ik.npz", "ik.parquet"} and res["files"]["ik.parquet"]["rows"] == B + 1
+    with np.load(tmp_path / "o" / "ik.npz") as z:
+        assert {i.compress_type for i in z.zip.infolist()} == {0}
+        assert np.array_equal(rows[["command[0]", "command[1]"]].to_numpy(), z["command"])
+        assert np.array_equal(rows[[f"tip_position[{i}]" for i in range(3)]].to_numpy(), z["tip_position"])
+        assert rows["reason"].astype(str).tolist() == z["reason"].tolist()
+        for key in ("success", "position_error", "orientation_error", "iterations"):
+            assert np.array_equal(rows[key].to_numpy(), z[key]), key
+    assert np.array_equal(rows[[f"target[{i}]" for i in range(3)]].to_numpy(), targets)
+    assert np.abs(rows["command[0]"][:B] - TAU[:, 0]).max() < 1e-6  # the tensions that made the tips

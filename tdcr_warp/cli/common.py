@@ -16,6 +16,9 @@ import numpy as np
 from tdcr_warp.kernels.variants import INTEGRATORS, MODELS
 from tdcr_warp.model.robot import InputError
 
+# Batches up to this size are written per rod into the JSON results; larger ones into a Parquet
+# table (per-rod JSON costs ~0.5 ms a rod: 8 s for 16,384 rods, twice their solve).
+JSON_RODS = 100
 # The [solver] fields that the command line overrides (--nodes, --integrator, --model, --precision).
 OVERRIDES = ("nodes", "integrator", "model", "precision")
 
@@ -40,10 +43,11 @@ def write_npz(path: Path, save) -> None:
     write_atomic(path, write)
 
 
-def write_arrays(path: Path, obj) -> dict:
-    """``path`` (.npz): the NumPy array fields of the dataclass ``obj``, uncompressed (deflating the
-    float64 shapes of 16,384 rods took 3.8 s and saved 15%). Returns {key: [shape, dtype]}."""
-    arrays = {f.name: v for f in fields(obj) if isinstance(v := getattr(obj, f.name), np.ndarray)}
+def write_arrays(path: Path, obj, **extra: np.ndarray) -> dict:
+    """``path`` (.npz): the NumPy array fields of the dataclass ``obj`` and ``extra``, uncompressed
+    (deflating the float64 shapes of 16,384 rods took 3.8 s and saved 15%). Returns {key: [shape,
+    dtype]}."""
+    arrays = {f.name: v for f in fields(obj) if isinstance(v := getattr(obj, f.name), np.ndarray)} | extra
     write_npz(path, lambda f: np.savez(f, **arrays))
     return {k: [list(v.shape), str(v.dtype)] for k, v in arrays.items()}
 

@@ -1,16 +1,19 @@
 """``tdcr-warp ik SCENE.toml``: inverse kinematics, the tendon commands for the scene's [ik]
-targets (tdcr_warp.apps.ik); ik.json and ik.npz."""
+targets (tdcr_warp.apps.ik); ik.json (per target up to JSON_RODS targets, else a summary),
+ik.parquet (larger batches) and ik.npz."""
 
 from __future__ import annotations
 
 import sys
 import time
+from collections import Counter
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
 from tdcr_warp.cli.common import (
+    JSON_RODS,
     add_command,
     add_log_arguments,
     add_solver_arguments,
@@ -18,10 +21,12 @@ from tdcr_warp.cli.common import (
     load_kernels,
     out_dir,
     settings,
+    write_arrays,
     write_json,
-    write_npz,
 )
 from tdcr_warp.model.robot import InputError
+
+IK_TABLE = "ik.parquet"
 
 
 def register(subparsers) -> None:
@@ -53,21 +58,42 @@ def run(args) -> int:
               f"{res.reason[b]} ({res.iterations[b]} iterations)")
     if B > 10:
         print(f"  ... {B - 10} more rods")
-    write_npz(out / "ik.npz", res.to_npz)
     targets = np.broadcast_to(np.array(ik["targets"], dtype=np.float64), (B, 3))
+    files = {"ik.npz": write_arrays(out / "ik.npz", res, reason=np.array(res.reason))}
+    if B <= JSON_RODS:
+        (out / IK_TABLE).unlink(missing_ok=True)  # an earlier, larger run's
+    else:
+        files[IK_TABLE] = _write_table(out / IK_TABLE, res, targets)
     results = {"scene": str(args.scene), "settings": settings(scene, args.device or "default"),
                "batch_size": B, "wall_time_s": wall, "kernel_load_s": load_s,
                "command_units": ["N" if t.control == "tension" else "m" for t in scene.robot.tendons],
-               "rods": [{"target": targets[b].tolist(), "command": res.command[b].tolist(),
-                         "tip_position": res.tip_position[b].tolist(),
-                         "position_error_m": float(res.position_error[b]),
-                         "orientation_error_rad": float(res.orientation_error[b]), "success": bool(res.success[b]),
-                         "reason": res.reason[b], "iterations": int(res.iterations[b])} for b in range(B)]}
+               "reached": int(res.success.sum()), "reasons": dict(Counter(res.reason)), "files": files}
+    if B <= JSON_RODS:
+        results["rods"] = [{"target": targets[b].tolist(), "command": res.command[b].tolist(),
+                            "tip_position": res.tip_position[b].tolist(),
+                            "position_error_m": float(res.position_error[b]),
+                            "orientation_error_rad": float(res.orientation_error[b]),
+                            "success": bool(res.success[b]), "reason": res.reason[b],
+                            "iterations": int(res.iterations[b])} for b in range(B)]
     write_json(out / "ik.json", results)  # last: its presence means the run is complete
-    print(f"wrote {out}/ik.json, ik.npz")
+    print(f"wrote {out}/ik.json, {', '.join(files)}")
     missed = int((~res.success).sum())
     if missed:
         print(f"tdcr-warp: {missed} of {B} targets not reached (for an unreachable one, the closest point found: "
-              "ik.json)", file=sys.stderr)
+              f"{'ik.json' if B <= JSON_RODS else IK_TABLE})", file=sys.stderr)
         return 1
     return 0
+
+
+def _write_table(path: Path, res, targets: np.ndarray) -> dict:
+    """ik.parquet: one row per target (docs/outputs.md), a vector one column per component.
+    Returns {"rows": B, "columns": {name: type}}."""
+    from tdcr_warp.io.store import table_columns, write_table
+
+    B = len(res.success)
+    rest, widths, _ = table_columns({"target": targets, "command": res.command, "tip_position": res.tip_position,
+                                     "position_error": res.position_error,
+                                     "orientation_error": res.orientation_error, "iterations": res.iterations}, B)
+    columns = {"row": np.arange(B, dtype=np.int64), "success": res.success, "reason": list(res.reason)} | rest
+    write_table(path, columns, {"command": "ik", "rows": B, "widths": widths})
+    return {"rows": B, "columns": {k: "string" if isinstance(v, list) else str(v.dtype) for k, v in columns.items()}}

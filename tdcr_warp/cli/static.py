@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from tdcr_warp.cli.common import (
+    JSON_RODS,
     add_command,
     add_html_argument,
     add_log_arguments,
@@ -28,7 +29,6 @@ from tdcr_warp.cli.common import (
 )
 
 ROD_TABLE = "rods.parquet"
-JSON_RODS = 100  # batches up to this size per rod into results.json, larger ones into ROD_TABLE
 
 
 def register(subparsers) -> None:
