@@ -209,8 +209,7 @@ class Shooting:
         else:
             self.host(self.mask).put(mask)
             m = self.mask
-        newton = [self.dev.wdtype(tol), int(max_iter), self.dev.wdtype(max_step), int(broyden)]
-        self.loop.run(self, x_from, m, newton, fresh_jacobian)
+        self.loop.run(self, x_from, m, (tol, max_iter, max_step, broyden), fresh_jacobian)
 
     def counts(self) -> tuple[np.ndarray, np.ndarray]:
         """Newton iterations and integrations of every rod's last solve, (b,) int64 host copies."""
@@ -266,16 +265,20 @@ class NewtonLoop:
 
     def __init__(self, kern, device, b: int, fused: bool):
         self.kern, self.device, self.b, self.fused = kern, device, b, fused
+        self._settings: tuple = (None, None)  # the last Newton settings and their typed values
         if fused:
             self.solve = Replay(kern.solve, b, device)
         else:
             self.begin, self.finish = Replay(kern.begin, b, device), Replay(kern.finish, b, device)
             self.probe, self.update = Replay(kern.probe, b * kern.width, device), Replay(kern.update, b, device)
 
-    def run(self, sh: Shooting, x_from: wp.array, mask: wp.array, newton: list, fresh_jacobian: bool) -> None:
+    def run(self, sh: Shooting, x_from: wp.array, mask: wp.array, settings: tuple, fresh_jacobian: bool) -> None:
         """Newton for the rods of ``sh`` in ``mask`` (device int per rod) from the unknowns ``x_from``;
-        newton = [tol, max_iter, max_step, broyden] in the kernels' types."""
-        nw = sh.newton
+        settings = (tol, max_iter, max_step, broyden), typed for the kernels once per distinct settings."""
+        if settings != self._settings[0]:
+            tol, max_iter, max_step, broyden = settings
+            self._settings = (settings, [sh.dev.wdtype(tol), int(max_iter), sh.dev.wdtype(max_step), int(broyden)])
+        newton, nw = self._settings[1], sh.newton
         if self.fused:
             self.solve(sh.model, sh.control, sh.step, nw, sh.nodes, x_from, int(fresh_jacobian), *newton,
                        sh.coarse_jacobian, mask)
