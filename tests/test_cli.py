@@ -309,3 +309,15 @@ def test_package_names_load_on_first_use_and_warp_stays_quiet():
             "print(tw.solve_static.__module__, warp.config.log_level == warp.LOG_WARNING, sorted(set(tw.__all__) - set(dir(tw))))")
     run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert run.stdout.split() == ["tdcr_warp.physics.statics", "True", "[]"]
+
+
+def test_only_the_process_command_line_freezes_the_heap_at_its_end(tmp_path, monkeypatch):
+    """main() without argv (tdcr-warp, python -m tdcr_warp: the process ends after it) freezes the
+    objects left, so that the exit skips a garbage collection over Warp's; a caller's main(argv) not."""
+    import gc
+    frozen = []
+    monkeypatch.setattr(gc, "freeze", lambda: frozen.append(True))
+    missing = str(tmp_path / "missing.toml")
+    assert main(["static", missing]) == 2 and not frozen
+    monkeypatch.setattr(sys, "argv", ["tdcr-warp", "static", missing])
+    assert main() == 2 and frozen == [True]

@@ -14,6 +14,7 @@ one line on stderr, and no completion file: results.json, metrics.json, ik.json,
 from __future__ import annotations
 
 import argparse
+import gc
 import signal
 import sys
 import threading
@@ -78,7 +79,9 @@ def main(argv=None) -> int:
     """Run the command line; returns the exit status (0 ok, 1 some rods failed, 2 bad input,
     130 interrupted). A malformed command line (argparse) raises SystemExit(2) after printing
     the usage. Ctrl-C (SIGINT, KeyboardInterrupt) ends any command with one line on stderr and
-    no completion file; from the first SIGINT on, SIGINT is ignored (_on_sigint)."""
+    no completion file; from the first SIGINT on, SIGINT is ignored (_on_sigint). Without ``argv``
+    (the process's own command line: ``tdcr-warp``, ``python -m tdcr_warp``) the objects left are
+    frozen (``gc.freeze``) so that the interpreter's exit skips a garbage collection over them."""
     from tdcr_warp.apps.cluster import SweepError
 
     args = build_parser().parse_args(argv)
@@ -115,3 +118,5 @@ def main(argv=None) -> int:
             wp.config.log_level = log_level
         if own and signal.getsignal(signal.SIGINT) is _on_sigint:  # no SIGINT came: as it was
             signal.signal(signal.SIGINT, signal.default_int_handler)
+        if argv is None:  # the process's own command line, which ends now: no final garbage collection
+            gc.freeze()   # over Warp's objects at exit (0.4-3 s measured, 0.1 s frozen)
