@@ -1,6 +1,6 @@
-"""`tdcr-warp static` and `ik` outputs at every batch size: results.json / ik.json (a summary;
-per rod up to JSON_RODS rods), rods.parquet / ik.parquet (larger batches) and the .npz arrays;
-tests/test_table_files.py reads per-rod tables as input."""
+"""The per-rod outputs at every batch size: `static`, `ik`, `simulate` and `control` write their
+JSON per rod up to JSON_RODS rods, above a summary and a Parquet table, and .npz arrays
+(uncompressed); tests/test_table_files.py reads per-rod tables as input."""
 
 import json
 from pathlib import Path
@@ -156,3 +156,36 @@ def test_ik_large_batch_writes_its_table(large, tmp_path, capsys):
             assert np.array_equal(rows[key].to_numpy(), z[key]), key
     assert np.array_equal(rows[[f"target[{i}]" for i in range(3)]].to_numpy(), targets)
     assert np.abs(rows["command[0]"][:B] - TAU[:, 0]).max() < 1e-6  # the tensions that made the tips
+
+
+def test_simulate_large_batch_writes_its_table(tmp_path):
+    (tmp_path / "s.toml").write_text(inline(TAU) + "[dynamics]\ndt = 0.005\nsteps = 3\n")
+    assert main(["simulate", str(tmp_path / "s.toml"), "--out", str(tmp_path / "o"), "--quiet",
+                 "--no-figures"]) == 0
+    res = json.loads((tmp_path / "o" / "results.json").read_text())
+    assert "completed" not in res and (res["completed_rods"], res["failed_rods"]) == (B, 0)
+    rods = pd.read_parquet(tmp_path / "o" / "rods.parquet")
+    assert not documented([*res, *rods.columns]), documented([*res, *rods.columns])
+    with np.load(tmp_path / "o" / "trajectory.npz") as z:
+        assert {i.compress_type for i in z.zip.infolist()} == {0}
+        tip = z["tip_position"][-1]
+        assert np.array_equal(rods[[f"final_tip_position[{i}]" for i in range(3)]].to_numpy(), tip)
+        assert np.array_equal(rods["max_iterations"].to_numpy(), z["iterations"].max(axis=0))
+    assert rods["completed"].all() and (rods["failed_step"] == 0).all()
+
+
+def test_control_large_batch_writes_its_table(tmp_path):
+    text = (ROOT / "examples" / "our_control.toml").read_text().replace(
+        "tensions = [[0.0, 0.0, 0.0, 0.0]]", "tensions = " + repr([[0.0] * 4] * B)).replace("nodes = 50", "nodes = 8")
+    (tmp_path / "s.toml").write_text(text)
+    assert main(["control", str(tmp_path / "s.toml"), "--out", str(tmp_path / "o"), "--quiet", "--steps", "3"]) == 0
+    res = json.loads((tmp_path / "o" / "metrics.json").read_text())
+    assert "metrics" not in res and (res["completed_rods"], res["failed_rods"]) == (B, 0)
+    table = pd.read_parquet(tmp_path / "o" / "metrics.parquet")
+    assert not documented([*res, *table.columns]), documented([*res, *table.columns])
+    assert set(res["units"]) | {"row", "completed", "target[0]", "target[1]", "target[2]"} == {
+        c.split("[")[0] if c.startswith("mean_tension") else c for c in table.columns}
+    with np.load(tmp_path / "o" / "control.npz") as z:
+        assert {i.compress_type for i in z.zip.infolist()} == {0}
+        assert np.array_equal(table[[f"target[{i}]" for i in range(3)]].to_numpy(), z["target"])
+        assert np.array_equal(table["final_error"].to_numpy(), np.linalg.norm(z["error"][-1], axis=1))

@@ -52,6 +52,20 @@ def write_arrays(path: Path, obj, **extra: np.ndarray) -> dict:
     return {k: [list(v.shape), str(v.dtype)] for k, v in arrays.items()}
 
 
+def write_rod_table(path: Path, command: str, first: dict, arrays: dict) -> dict:
+    """``path`` (Parquet, one row per rod; docs/outputs.md): the column ``row`` (0..B-1), the
+    columns ``first`` (arrays of one axis, lists of strings), then ``arrays``, a (B, n) array as n
+    columns ``key[i]``; its schema metadata ``tdcr_warp`` holds command, rows and those widths.
+    Returns {"rows": B, "columns": {name: type}} (the file list of the JSON results)."""
+    from tdcr_warp.io.store import table_columns, write_table
+
+    B = len(next(iter(first.values())))
+    rest, widths, _ = table_columns(arrays, B)
+    columns = {"row": np.arange(B, dtype=np.int64)} | first | rest
+    write_table(path, columns, {"command": command, "rows": B, "widths": widths})
+    return {"rows": B, "columns": {k: "string" if isinstance(v, list) else str(v.dtype) for k, v in columns.items()}}
+
+
 def out_dir(args, default: Path, *complete: str) -> Path:
     """The output directory (created), without the files ``complete`` of an earlier run (the
     command writes them last: their presence means a run is complete, so an interrupted run

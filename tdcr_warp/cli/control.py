@@ -12,6 +12,7 @@ import numpy as np
 
 from tdcr_warp.cli.animation import add_run_arguments, animate, check_shapes, html_run
 from tdcr_warp.cli.common import (
+    JSON_RODS,
     add_command,
     add_html_argument,
     add_log_arguments,
@@ -21,8 +22,11 @@ from tdcr_warp.cli.common import (
     settings,
     write_arrays,
     write_json,
+    write_rod_table,
 )
 from tdcr_warp.model.robot import InputError
+
+METRIC_TABLE = "metrics.parquet"
 
 
 def register(subparsers) -> None:
@@ -59,7 +63,13 @@ def run(args) -> int:
         print(f"  rod {b}: final error {metrics['final_error'][b] * 1e3:.3f} mm, settling "
               f"{metrics['settling_time'][b]:.3f} s, chatter {metrics['chatter'][b]:.2e} N, "
               f"mean tension {np.round(metrics['mean_tension'][b], 3).tolist()} N")
-    write_arrays(out / "control.npz", loop)
+    files = {"control.npz": write_arrays(out / "control.npz", loop)}
+    completed = sim.failed_step < 0
+    if B <= JSON_RODS:
+        (out / METRIC_TABLE).unlink(missing_ok=True)  # an earlier, larger run's
+    else:
+        files[METRIC_TABLE] = write_rod_table(out / METRIC_TABLE, "control", {"completed": completed},
+                                              {"target": np.broadcast_to(controller.target, (B, 3))} | metrics)
     plot_control(loop, out, tension_max=controller.tau_max, gain_c=controller.C)
     if args.animate:
         animate(scene, loop, sim.grid, out)
@@ -69,14 +79,16 @@ def run(args) -> int:
         "scene": str(args.scene), "settings": settings(scene, args.device or "default")
         | {"dt": spec.dt, "alpha": spec.alpha, "steps": steps, "method": controller.method,
            "input_model": controller.input_model, "command": controller.command},
-        "batch_size": B, "wall_time_s": wall, "target": controller.target.tolist(),
-        "completed": (sim.failed_step < 0).tolist(),
-        "metrics": {k: np.where(np.isfinite(v), v, -1.0).tolist() for k, v in metrics.items()},
-        "units": {k: METRIC_UNITS[k] for k in metrics},
-        "metrics_note": "settling_time -1 means the tip never stayed inside the 0.5 mm band",
+        "batch_size": B, "wall_time_s": wall, "completed_rods": int(completed.sum()),
+        "failed_rods": int((~completed).sum()), "files": files, "units": {k: METRIC_UNITS[k] for k in metrics},
     }
+    if B <= JSON_RODS:
+        results |= {"target": controller.target.tolist(), "completed": completed.tolist(),
+                    "metrics": {k: np.where(np.isfinite(v), v, -1.0).tolist() for k, v in metrics.items()},
+                    "metrics_note": "settling_time -1 means the tip never stayed inside the 0.5 mm band"}
     write_json(out / "metrics.json", results)
-    print(f"wrote {out}/metrics.json, control.npz, control_tip.png, control_tension.png, control_error_phase.png")
+    print(f"wrote {out}/metrics.json, {', '.join(files)}, control_tip.png, control_tension.png, "
+          "control_error_phase.png")
     if (sim.failed_step >= 0).any():
         print(f"{int((sim.failed_step >= 0).sum())} of {B} rods failed and were frozen", file=sys.stderr)
         return 1

@@ -23,6 +23,7 @@ from tdcr_warp.cli.common import (
     settings,
     write_arrays,
     write_json,
+    write_rod_table,
 )
 from tdcr_warp.model.robot import InputError
 
@@ -86,14 +87,8 @@ def run(args) -> int:
 
 
 def _write_table(path: Path, res, targets: np.ndarray) -> dict:
-    """ik.parquet: one row per target (docs/outputs.md), a vector one column per component.
-    Returns {"rows": B, "columns": {name: type}}."""
-    from tdcr_warp.io.store import table_columns, write_table
-
-    B = len(res.success)
-    rest, widths, _ = table_columns({"target": targets, "command": res.command, "tip_position": res.tip_position,
-                                     "position_error": res.position_error,
-                                     "orientation_error": res.orientation_error, "iterations": res.iterations}, B)
-    columns = {"row": np.arange(B, dtype=np.int64), "success": res.success, "reason": list(res.reason)} | rest
-    write_table(path, columns, {"command": "ik", "rows": B, "widths": widths})
-    return {"rows": B, "columns": {k: "string" if isinstance(v, list) else str(v.dtype) for k, v in columns.items()}}
+    """ik.parquet: one row per target (docs/outputs.md), a vector one column per component."""
+    return write_rod_table(path, "ik", {"success": res.success, "reason": list(res.reason)},
+                           {"target": targets, "command": res.command, "tip_position": res.tip_position,
+                            "position_error": res.position_error, "orientation_error": res.orientation_error,
+                            "iterations": res.iterations})

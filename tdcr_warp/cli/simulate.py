@@ -7,8 +7,11 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
+
 from tdcr_warp.cli.animation import add_run_arguments, animate, check_shapes, html_run
 from tdcr_warp.cli.common import (
+    JSON_RODS,
     add_command,
     add_html_argument,
     add_log_arguments,
@@ -21,8 +24,11 @@ from tdcr_warp.cli.common import (
     settings,
     write_arrays,
     write_json,
+    write_rod_table,
 )
 from tdcr_warp.model.robot import InputError
+
+ROD_TABLE = "rods.parquet"
 
 
 def register(subparsers) -> None:
@@ -62,7 +68,14 @@ def run(args) -> int:
           f"kernel loading and the {t1 - t0:.2f} s static start excluded)")
     reasons = ["ok" if f < 0 else f"failed at step {f + 1}" for f in traj.failed_step]
     print_rods(traj.tip_position[-1], ok, traj.iterations.max(axis=0), traj.residual[-1], reasons)
-    write_arrays(out / "trajectory.npz", traj)
+    files = {"trajectory.npz": write_arrays(out / "trajectory.npz", traj)}
+    failed_step = np.where(traj.failed_step >= 0, traj.failed_step + 1, 0)  # 1-based, 0: none
+    if B <= JSON_RODS:
+        (out / ROD_TABLE).unlink(missing_ok=True)  # an earlier, larger run's
+    else:
+        files[ROD_TABLE] = write_rod_table(out / ROD_TABLE, "simulate", {"completed": ok, "failed_step": failed_step},
+                                           {"final_tip_position": traj.tip_position[-1],
+                                            "max_iterations": traj.iterations.max(axis=0)})
     if not args.no_figures:
         from tdcr_warp.io.plotting import plot_tip_history
         plot_tip_history(traj.time, traj.tip_position, traj.tip_velocity, traj.tip_acceleration, out)
@@ -74,14 +87,16 @@ def run(args) -> int:
         "scene": str(args.scene), "settings": settings(scene, args.device or "default")
         | {"dt": spec.dt, "alpha": spec.alpha, "steps": steps},
         "batch_size": B, "wall_time_s": wall, "stepping_s": stepping, "kernel_load_s": load_s,
-        "final_tip_position": traj.tip_position[-1].tolist(), "completed": ok.tolist(),
-        "failed_step": [int(f) + 1 if f >= 0 else None for f in traj.failed_step],
-        "max_iterations": traj.iterations.max(axis=0).tolist(),
+        "completed_rods": int(ok.sum()), "failed_rods": int((~ok).sum()), "files": files,
     }
+    if B <= JSON_RODS:
+        results |= {"final_tip_position": traj.tip_position[-1].tolist(), "completed": ok.tolist(),
+                    "failed_step": [int(f) if f else None for f in failed_step],
+                    "max_iterations": traj.iterations.max(axis=0).tolist()}
     write_json(out / "results.json", results)
-    print(f"wrote {out}/results.json, trajectory.npz{'' if args.no_figures else ', tip_position.png, tip_rates.png'}")
+    print(f"wrote {out}/results.json, {', '.join(files)}{'' if args.no_figures else ', tip_position.png, tip_rates.png'}")
     if not ok.all():
-        print(f"{int((~ok).sum())} of {B} rods failed and were frozen (failed_step in results.json)",
-              file=sys.stderr)
+        print(f"{int((~ok).sum())} of {B} rods failed and were frozen (failed_step in "
+              f"{'results.json' if B <= JSON_RODS else ROD_TABLE})", file=sys.stderr)
         return 1
     return 0

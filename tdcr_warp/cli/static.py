@@ -26,6 +26,7 @@ from tdcr_warp.cli.common import (
     write_arrays,
     write_atomic,
     write_json,
+    write_rod_table,
 )
 
 ROD_TABLE = "rods.parquet"
@@ -113,15 +114,9 @@ def _rod_arrays(scene, sol) -> dict:
 
 def _write_rod_table(path: Path, scene, sol, reasons: list[str]) -> dict:
     """rods.parquet: one row per rod, a (B, K) array one column per tendon (``key[k]``), as the
-    sweeps' tables. Returns {"rows": B, "columns": {name: type}}."""
-    from tdcr_warp.io.store import table_columns, write_table
-
-    B = len(reasons)
-    rest, widths, _ = table_columns(_rod_arrays(scene, sol), B)
-    columns = {"row": np.arange(B, dtype=np.int64), "converged": sol.converged, "status": sol.status,
-               "status_text": reasons} | rest
-    write_table(path, columns, {"command": "static", "rows": B, "widths": widths})
-    return {"rows": B, "columns": {k: "string" if isinstance(v, list) else str(v.dtype) for k, v in columns.items()}}
+    sweeps' tables."""
+    first = {"converged": sol.converged, "status": sol.status, "status_text": reasons}
+    return write_rod_table(path, "static", first, _rod_arrays(scene, sol))
 
 
 def _rods_json(sol, reasons: list[str]) -> dict:
