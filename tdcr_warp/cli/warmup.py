@@ -2,11 +2,11 @@
 
 Warp compiles a kernel module on its first use with a kernel cache (3-30 s each on a CPU, for this
 CPU) and loads it from the cache in milliseconds afterwards. Warmup runs the example commands of
-the README and the tutorials (or ``static`` on the scenes given) once, quietly, into a temporary
-directory, ``--jobs`` at a time, so that each builds exactly the kernels its command needs, as the
-command itself would; meanwhile it builds matplotlib's font cache (the first figure's extra
-second). It says what it is doing, and where everything is already built it takes seconds and
-compiles nothing. The README's set-up command runs it.
+the README and the tutorials (or ``static`` on the scenes given) once, quietly and cut short
+(QUICK), into a temporary directory, ``--jobs`` at a time, so that each builds exactly the kernels
+its command needs, as the command itself would; meanwhile it builds matplotlib's font cache (the
+first figure's extra second). It says what it is doing, and where everything is already built it
+takes seconds and compiles nothing. The README's set-up command runs it.
 """
 
 from __future__ import annotations
@@ -29,7 +29,11 @@ DEFAULT_RUNS = (("simulate", "seed_dynamics.toml"), ("static", "seed_robot.toml"
                 ("montecarlo", "tutorials/montecarlo.toml"))
 
 
-NO_FIGURES = ("static", "simulate")  # the commands with --no-figures
+# Each command's arguments for the least work that still loads every kernel of the full run: no
+# figures, the first steps of a run (the start and the controller's linearisation come first), the
+# first chunk of a sweep.
+QUICK = {"static": ["--no-figures"], "simulate": ["--no-figures", "--steps", "2"], "control": ["--steps", "2"],
+         "workspace": ["--max-chunks", "1"], "montecarlo": ["--max-chunks", "1"]}
 
 
 def register(subparsers) -> None:
@@ -60,10 +64,9 @@ def _cached_modules(cache: Path) -> set[str]:
 
 
 def _run_one(command: str, scene: str, out: Path, device: str | None) -> tuple[int, float, str]:
-    """One command in its own process (as a user would run it, without the figures where it can):
-    exit status, seconds, its output."""
-    cmd = [sys.executable, "-m", "tdcr_warp", command, scene, "--out", str(out), "--quiet"]
-    cmd += ["--no-figures"] if command in NO_FIGURES else []
+    """One command in its own process, as a user would run it but cut short (QUICK): exit status,
+    seconds, its output."""
+    cmd = [sys.executable, "-m", "tdcr_warp", command, scene, "--out", str(out), "--quiet", *QUICK.get(command, [])]
     t0 = time.perf_counter()
     done = subprocess.run(cmd + (["--device", device] if device else []), capture_output=True, text=True,
                           check=False)
