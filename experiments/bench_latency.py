@@ -100,7 +100,9 @@ def _run(case: str, path: str | None, calls: int) -> dict:
         env["PYTHONPATH"] = path
     with tempfile.TemporaryDirectory() as cwd:  # no tdcr_warp folder to shadow the install
         out = subprocess.run([sys.executable, str(Path(__file__).resolve()), "--worker", case, "--calls", str(calls)],
-                             env=env, cwd=cwd, check=True, capture_output=True, text=True)
+                             env=env, cwd=cwd, capture_output=True, text=True, check=False)
+    if out.returncode:
+        raise RuntimeError(f"case {case!r} with {path or 'the installed tdcr_warp'} failed:\n{out.stderr[-2000:]}")
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
