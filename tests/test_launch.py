@@ -59,6 +59,26 @@ def test_replay_sees_struct_fields_and_repacks_changed_arguments():
     assert np.array_equal(outs[0].numpy(), -3.5 * np.linspace(1.0, 2.0, n) + 0.25)
 
 
+def test_first_probe_announces_a_compile(monkeypatch, capsys):
+    """The evaluation kernel loaded lazily by the first probe (sensitivities, the stability
+    verdict, the controller's linearisation) says so on stderr when it compiles, as the solver's
+    kernels do (core/solver.py set_compile_notice)."""
+    from tdcr_warp.core import solver
+
+    problem = StaticProblem(report_robot(), 1, tw.StaticOptions(nodes=8, stability="off"), wp.get_device("cpu"))
+    capsys.readouterr()
+    monkeypatch.setattr(solver, "_needs_compile", lambda *args: True)  # as on an empty kernel cache
+    problem.solvers[0].probe(np.zeros((1, 6)))
+    assert "tdcr-warp: compiling kernels for cpu" in capsys.readouterr().err
+    solver.set_compile_notice(False)
+    try:
+        StaticProblem(report_robot(), 1, tw.StaticOptions(nodes=8, stability="off"), wp.get_device("cpu")
+                      ).solvers[0].probe(np.zeros((1, 6)))
+        assert capsys.readouterr().err == ""
+    finally:
+        solver.set_compile_notice(True)
+
+
 def test_mirror_is_a_view_on_the_cpu():
     a = wp.zeros((3, 2), dtype=wp.float32, device="cpu")
     m = Mirror(a, np.float32)

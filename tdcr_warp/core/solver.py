@@ -67,10 +67,15 @@ def _needs_compile(module, device, block_dim: int) -> bool:
 
 def _load_solver_kernels(k, fused: bool, evaluate: bool, device) -> None:
     """Compile (or load) the kernels a Shooting of variant k runs: its Newton driver, and with
-    ``evaluate`` the evaluation of a known state (dynamics; the probes of sensitivities). Before
-    a compile, one line on stderr says so (``set_compile_notice``), and after it how long it took."""
+    ``evaluate`` the evaluation of a known state (dynamics; the probes of sensitivities)."""
+    _load_modules((k.solve if fused else k.probe,) + ((k.evaluate,) if evaluate else ()), device)
+
+
+def _load_modules(kernels: tuple, device) -> None:
+    """Compile (or load) the modules of ``kernels``. Before a compile, one line on stderr says so
+    (``set_compile_notice``), and after it how long it took."""
+    device = wp.get_device(device)
     block = 1 if device.is_cpu else 256
-    kernels = (k.solve if fused else k.probe,) + ((k.evaluate,) if evaluate else ())
     compiling = COMPILE_NOTICE["enabled"] and any(_needs_compile(kn.module, device, block) for kn in kernels)
     if compiling:
         print(f"tdcr-warp: compiling kernels for {device} (first use of this robot's features and solver options "
@@ -324,9 +329,9 @@ class Probes:
     @functools.cached_property
     def nodes(self):
         """The shapes of a probe; made with the first probe, which also loads the evaluation
-        kernel (once per Shooting, not per probe)."""
+        kernel (once per Shooting, not per probe; a compile says so on stderr, as the solver's do)."""
         sh = self.sh
-        sh.kern.evaluate.module.load(sh.device, 1 if wp.get_device(sh.device).is_cpu else 256)
+        _load_modules((sh.kern.evaluate,), sh.device)
         return make_state(sh.kern, sh.dev, sh.b, sh.n1, sh.dynamic)
 
     def __call__(self, x: np.ndarray, model=None, *, shapes: bool = False) -> dict[str, np.ndarray]:
