@@ -59,6 +59,12 @@ def runs_of(scenes: list[str]) -> list[tuple[str, str]]:
     return [(cmd, str(EXAMPLES / scene)) for cmd, scene in DEFAULT_RUNS]
 
 
+def _shown(path: str) -> str:
+    """The path relative to the working directory where it lies below it."""
+    rel = os.path.relpath(path)
+    return path if rel.startswith("..") else rel
+
+
 def _cached_modules(cache: Path) -> set[str]:
     return set(os.listdir(cache)) if cache.is_dir() else set()
 
@@ -95,10 +101,10 @@ def run(args) -> int:
             rc, sec, output = fut.result()
             ok = rc in (0, 1)  # 1: some rods did not converge; the kernels are built
             failed += not ok
-            say(f"  {cmd} {scene}: {sec:.1f} s" + ("" if ok else f", FAILED (exit status {rc})"), flush=True)
+            say(f"  {cmd} {_shown(scene)}: {sec:.1f} s" + ("" if ok else f", FAILED (exit status {rc})"), flush=True)
             if not ok or args.verbose:
                 print(output.rstrip(), file=sys.stdout if ok else sys.stderr)
     after = _cached_modules(cache)
     say(f"{len(after - before)} kernel module(s) compiled in {time.perf_counter() - t0:.0f} s "
-        f"(the cache holds {len(after)})")
+        f"(new in the cache, which holds {len(after)})")
     return 1 if failed else 0
