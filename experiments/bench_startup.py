@@ -20,8 +20,9 @@ every run compiles the package's ~50 modules again, ~0.3-0.6 s).
   and new alternating, median over ``--repeats``.
 - ``python -c "import tdcr_warp"``, alternating, median.
 
-Prints a Markdown table (medians, with the range over repeats) and the new/old ratio. On a shared
-machine only the same-run ratios mean much.
+Prints two Markdown tables, wall and CPU seconds (user + system of the process and its children:
+on a loaded machine closer to what a quiet one would take), each with medians, the range over
+repeats and the new/old ratio. On a shared machine only the same-run ratios mean much.
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import resource
 import shutil
 import statistics
 import subprocess
@@ -41,14 +43,17 @@ ROOT = Path(__file__).resolve().parents[1]
 SCENE = str(ROOT / "examples" / "seed_robot.toml")
 
 
-def timed(cmd: list[str], env: dict, cwd: str) -> float:
-    """Seconds from start to exit of ``cmd``; its failure (exit status above 1) raises with its output."""
+def timed(cmd: list[str], env: dict, cwd: str) -> tuple[float, float]:
+    """Wall seconds from start to exit of ``cmd`` and its CPU seconds (user + system, with its
+    children's); its failure (exit status above 1) raises with its output."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
     done = subprocess.run(cmd, env=env, cwd=cwd, capture_output=True, text=True, check=False)
     sec = time.perf_counter() - t0
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
     if done.returncode > 1:
         raise RuntimeError(f"{' '.join(cmd)} exited {done.returncode}:\n{done.stdout[-2000:]}\n{done.stderr[-2000:]}")
-    return sec
+    return sec, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
 
 
 class Side:
@@ -75,23 +80,23 @@ class Side:
             for pyc in Path(root).rglob("__pycache__"):
                 shutil.rmtree(pyc, ignore_errors=True)
 
-    def cli(self, *args: str) -> float:
+    def cli(self, *args: str) -> tuple[float, float]:
         return timed([sys.executable, "-m", "tdcr_warp", *args], self.env, str(self.cwd))
 
-    def static(self, *extra: str) -> float:
+    def static(self, *extra: str) -> tuple[float, float]:
         return self.cli("static", SCENE, "--out", str(self.cwd / "out"), *extra)
 
-    def import_time(self) -> float:
+    def import_time(self) -> tuple[float, float]:
         return timed([sys.executable, "-c", "import tdcr_warp"], self.env, str(self.cwd))
 
 
-def measure(args) -> dict[str, dict[str, list[float]]]:
-    """{row: {"old": [s...], "new": [s...]}} of every measurement."""
-    rows: dict[str, dict[str, list[float]]] = {}
+def measure(args) -> dict[str, dict[str, list[list[float]]]]:
+    """{row: {"old": [[wall, cpu] s...], "new": [...]}} of every measurement."""
+    rows: dict[str, dict[str, list[list[float]]]] = {}
 
-    def add(row: str, side: Side, sec: float) -> None:
-        rows.setdefault(row, {}).setdefault(side.name, []).append(sec)
-        print(f"  {row:<45} {side.name}: {sec:6.2f} s", file=sys.stderr, flush=True)
+    def add(row: str, side: Side, sec: tuple[float, float]) -> None:
+        rows.setdefault(row, {}).setdefault(side.name, []).append(list(sec))
+        print(f"  {row:<45} {side.name}: {sec[0]:6.2f} s wall, {sec[1]:6.2f} s CPU", file=sys.stderr, flush=True)
 
     with tempfile.TemporaryDirectory(prefix="bench_startup_") as tmp:
         old, new = Side("old", args.old, Path(tmp)), Side("new", args.new, Path(tmp))
@@ -116,16 +121,17 @@ def measure(args) -> dict[str, dict[str, list[float]]]:
     return rows
 
 
-def table(rows: dict) -> str:
+def table(rows: dict, col: int, what: str) -> str:
+    """Medians (and ranges over repeats) of column ``col`` (0 wall, 1 CPU) of every row."""
     def cell(xs):
         if not xs:
             return ""
         med = statistics.median(xs)
         return f"{med:.2f} s" + (f" ({min(xs):.2f}-{max(xs):.2f})" if len(xs) > 1 else "")
 
-    out = ["| measurement | old | new | new/old |", "|---|---|---|---|"]
+    out = [f"| measurement ({what}) | old | new | new/old |", "|---|---|---|---|"]
     for row, sides in rows.items():
-        o, n = sides.get("old", []), sides.get("new", [])
+        o, n = ([t[col] for t in sides.get(k, [])] for k in ("old", "new"))
         ratio = f"{statistics.median(n) / statistics.median(o):.2f}" if o and n else ""
         out.append(f"| {row} | {cell(o)} | {cell(n)} | {ratio} |")
     return "\n".join(out)
@@ -143,7 +149,9 @@ def main(argv=None) -> int:
     print(f"{time.strftime('%Y-%m-%d %H:%M:%S')}, load average {os.getloadavg()[0]:.2f}, {os.cpu_count()} CPUs",
           file=sys.stderr)
     rows = measure(args)
-    print(table(rows))
+    print(table(rows, 0, "wall"))
+    print()
+    print(table(rows, 1, "CPU: user + system, with child processes"))
     if args.json:
         Path(args.json).write_text(json.dumps(rows, indent=1))
     return 0
