@@ -16,8 +16,9 @@ Cases (the report's robot: 4 tendons, gravity; RK4, coupled, float64, CPU, one t
 ``--old`` / ``--new``: a directory whose tdcr_warp is measured (put first on PYTHONPATH, run from
 an empty working directory); without ``--new`` the installed tdcr_warp (this checkout's editable
 install), without ``--old`` only the new one. Prints a Markdown
-table: per case the median over rounds of each install's median time per call, and the median
-of the per-round ratios old / new.
+table: per case the median over rounds of each install's median time a call, in wall time and in
+the calling thread's CPU time (robust to a loaded machine: the CPU kernels run on that thread),
+and the median of the per-round ratios old / new.
 """
 
 from __future__ import annotations
@@ -45,16 +46,19 @@ ROD = {"length": 0.5, "youngs_modulus": 190e9, "poisson_ratio": 0.3, "radius": 1
 DT = 0.005
 
 
-def _timed(fn, calls: int, warm: int) -> tuple[float, float]:
-    """Median and mean seconds of ``calls`` calls of fn after ``warm`` unmeasured ones."""
+def _timed(fn, calls: int, warm: int) -> dict:
+    """Median and mean seconds of ``calls`` calls of fn after ``warm`` unmeasured ones, in wall time
+    and in the thread's CPU time (a CPU kernel runs on the calling thread: on a loaded machine the
+    CPU time is close to what a quiet one's wall time would be)."""
     for _ in range(warm):
         fn()
-    times = np.empty(calls)
+    wall, cpu = np.empty(calls), np.empty(calls)
     for i in range(calls):
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.thread_time()
         fn()
-        times[i] = time.perf_counter() - t0
-    return float(np.median(times)), float(times.mean())
+        wall[i], cpu[i] = time.perf_counter() - t0, time.thread_time() - c0
+    return {"median_s": float(np.median(wall)), "mean_s": float(wall.mean()), "cpu_median_s": float(np.median(cpu)),
+            "cpu_mean_s": float(cpu.mean())}
 
 
 def worker(case: str, calls: int) -> dict:
@@ -71,8 +75,7 @@ def worker(case: str, calls: int) -> dict:
             return tw.solve_static(robot, taus[next(it) % 16], nodes=20, threads=1, **kw)
 
         assert solve().converged.all()
-        med, mean = _timed(solve, calls, 20)
-        return {"median_s": med, "mean_s": mean}
+        return _timed(solve, calls, 20)
     sim = tw.Simulator(robot, [[0.0] * 4], dt=DT, alpha=-0.2, nodes=50, threads=1)
     iters = []
     if case == "dynamics":
@@ -89,9 +92,9 @@ def worker(case: str, calls: int) -> dict:
 
         def step():
             iters.append(sim.step(ctrl()).iterations[0])
-    med, mean = _timed(step, calls, 20)
-    return {"median_s": med, "mean_s": mean, "real_time_factor": DT / mean,
-            "iterations": float(np.mean(iters[20:]))}
+    t = _timed(step, calls, 20)
+    return t | {"real_time_factor": DT / t["mean_s"], "real_time_factor_cpu": DT / t["cpu_mean_s"],
+                "iterations": float(np.mean(iters[20:]))}
 
 
 def _run(case: str, path: str | None, calls: int) -> dict:
@@ -106,29 +109,31 @@ def _run(case: str, path: str | None, calls: int) -> dict:
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
-def _ms(x: float) -> str:
-    return f"{x * 1e3:.3f}"
+def _med(runs: list, key: str) -> float:
+    return float(np.median([r[key] for r in runs]))
 
 
 def table(results: dict, old: bool) -> str:
-    """The Markdown table of ``results`` (case -> install -> list of per-round measurements)."""
-    head = "| case | new [ms] | new mean [ms] |" + (" old [ms] | old / new |" if old else "") + " notes |"
+    """The Markdown table of ``results`` (case -> install -> list of per-round measurements): the
+    median over rounds of each round's median time a call [ms], wall and thread CPU, the median of
+    the per-round ratios old / new, and for time steps the real-time factor dt / mean time a step."""
+    head = "| case | new wall [ms] | new CPU [ms] |" + (" old wall [ms] | old CPU [ms] | old / new wall | old / new CPU |"
+                                                       if old else "") + " notes |"
     lines = [head, "|" + "---|" * (head.count("|") - 1)]
     for case, by in results.items():
         new = by["new"]
-        row = f"| {case} | {_ms(np.median([r['median_s'] for r in new]))} | " \
-              f"{_ms(np.median([r['mean_s'] for r in new]))} |"
+        row = f"| {case} | {_med(new, 'median_s') * 1e3:.3f} | {_med(new, 'cpu_median_s') * 1e3:.3f} |"
         notes = []
         if "real_time_factor" in new[0]:
-            notes.append(f"real time x{np.median([r['real_time_factor'] for r in new]):.1f} new")
+            notes.append(f"real time x{_med(new, 'real_time_factor'):.1f} new (CPU x{_med(new, 'real_time_factor_cpu'):.1f})")
             notes.append(f"{np.mean([r['iterations'] for r in new]):.2f} Newton iterations a step")
         if old:
-            ratios = [o["median_s"] / n["median_s"] for o, n in zip(by["old"], new)]
-            row += f" {_ms(np.median([r['median_s'] for r in by['old']]))} | {np.median(ratios):.2f}x |"
+            ratio = {k: np.median([o[k] / n[k] for o, n in zip(by["old"], new)]) for k in ("median_s", "cpu_median_s")}
+            row += (f" {_med(by['old'], 'median_s') * 1e3:.3f} | {_med(by['old'], 'cpu_median_s') * 1e3:.3f} |"
+                    f" {ratio['median_s']:.2f}x | {ratio['cpu_median_s']:.2f}x |")
             if "real_time_factor" in new[0]:
-                rt = [n["real_time_factor"] / o["real_time_factor"] for o, n in zip(by["old"], new)]
-                notes.append(f"x{np.median([r['real_time_factor'] for r in by['old']]):.1f} old "
-                             f"(real-time factor new / old {np.median(rt):.2f}x)")
+                notes.append(f"x{_med(by['old'], 'real_time_factor'):.1f} old (CPU "
+                             f"x{_med(by['old'], 'real_time_factor_cpu'):.1f})")
         lines.append(row + " " + "; ".join(notes) + " |")
     return "\n".join(lines)
 
