@@ -9,7 +9,10 @@ solve_static: start (the interpreter, until the first line runs), import (tdcr_w
 scene, kernels, solve, output (everything after the solve: per-rod lines, files), exit (from
 the command's return until the process has ended: Python's and Warp's teardown), and the
 process's wall time. Configurations
-alternate within each repeat; medians over repeats. The ratio is end to end / solve.
+alternate within each repeat; medians over repeats. The ratio is end to end / solve; on a loaded
+machine every phase stretches, so the table also gives the solve's CPU seconds (all its threads)
+and the process's CPU seconds besides the solve's (the phases around the solve run on one
+thread: on a quiet machine about their wall time).
 
     python experiments/bench_static_output.py [--rods 16384] [--repeats 3] [--old /tmp/ref26pkg]
         [--new PATH] [--smoke] [--out results/bench_static_output.json]
@@ -23,6 +26,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import resource
 import statistics
 import subprocess
 import sys
@@ -45,19 +49,22 @@ born = time.time()
 t0 = time.perf_counter()
 from tdcr_warp.cli import main
 import tdcr_warp.cli.static as cs, tdcr_warp.io.scene as sc, tdcr_warp.physics.statics as st
-T = dict.fromkeys(("scene", "kernels", "solve"), 0.0)
+T = dict.fromkeys(("scene", "kernels", "solve", "solve_cpu"), 0.0)
 def timed(mod, name, key):
     f = getattr(mod, name)
     def g(*a, **k):
-        t = time.perf_counter()
+        t, c = time.perf_counter(), time.process_time()
         try:
             return f(*a, **k)
         finally:
             T[key] += time.perf_counter() - t
+            if key == "solve":
+                T["solve_cpu"] += time.process_time() - c
     setattr(mod, name, g)
 timed(sc, "load_scene", "scene"); timed(cs, "load_kernels", "kernels"); timed(st, "solve_static", "solve")
 t1 = time.perf_counter()
-rc = main(sys.argv[1:])
+sys.argv[0] = "tdcr-warp"
+rc = main()  # as the command runs: main() of the process's own command line
 t2 = time.perf_counter()
 T["import"] = t1 - t0
 T["output"] = t2 - t1 - T["scene"] - T["kernels"] - T["solve"]
@@ -86,27 +93,32 @@ def run_once(pythonpath: str | None, scene: Path, out: Path, cwd: Path) -> dict:
     env.pop("PYTHONPATH", None)
     if pythonpath:
         env["PYTHONPATH"] = pythonpath
-    t0, w0 = time.perf_counter(), time.time()
+    t0, w0, r0 = time.perf_counter(), time.time(), resource.getrusage(resource.RUSAGE_CHILDREN)
     p = subprocess.run([sys.executable, "-c", CHILD, "static", str(scene), "--out", str(out), "--no-figures",
                         "--quiet"], check=False, cwd=cwd, env=env, capture_output=True, text=True)
-    wall, w1 = time.perf_counter() - t0, time.time()
+    wall, w1, r1 = time.perf_counter() - t0, time.time(), resource.getrusage(resource.RUSAGE_CHILDREN)
     if p.returncode != 0:
         raise SystemExit(f"static failed ({p.returncode}) with PYTHONPATH={pythonpath}:\n{p.stderr[-2000:]}")
     line = next(x for x in p.stdout.splitlines() if x.startswith("PHASES "))
     phases = json.loads(line[len("PHASES "):])
     phases["start"], phases["exit"] = phases.pop("born") - w0, w1 - phases.pop("done")
+    cpu = r1.ru_utime + r1.ru_stime - r0.ru_utime - r0.ru_stime
+    phases["cpu_besides_solve"] = cpu - phases["solve_cpu"]
     files = {f.name: f.stat().st_size for f in out.iterdir() if f.is_file()}
     return {**phases, "end_to_end": wall, "files": files}
 
 
+
 def table(rows: dict[str, dict], rods: int) -> str:
     lines = [f"`tdcr-warp static --no-figures`, {rods:,} rods (medians; s)", "",
-             "| configuration | " + " | ".join(PHASES) + " | end to end | end to end / solve | files (MB) |",
-             "|---|" + "---|" * (len(PHASES) + 3)]
+             "| configuration | " + " | ".join(PHASES) + " | end to end | end to end / solve | solve CPU s | CPU s "
+             "besides the solve | files (MB) |",
+             "|---|" + "---|" * (len(PHASES) + 5)]
     for name, r in rows.items():
         mb = ", ".join(f"{k} {v / 1e6:.1f}" for k, v in sorted(r["files"].items()))
         lines.append(f"| {name} | " + " | ".join(f"{r[p]:.3f}" for p in PHASES)
-                     + f" | {r['end_to_end']:.3f} | {r['end_to_end'] / r['solve']:.2f} | {mb} |")
+                     + f" | {r['end_to_end']:.3f} | {r['end_to_end'] / r['solve']:.2f} | {r['solve_cpu']:.3f} | "
+                     f"{r['cpu_besides_solve']:.3f} | {mb} |")
     return "\n".join(lines)
 
 
@@ -135,7 +147,7 @@ def main(argv=None) -> int:
                 samples[name].append(run_once(path, scenes[kind], out, cwd))
                 print(f"repeat {i + 1}/{repeats} {name}: end to end {samples[name][-1]['end_to_end']:.2f} s, "
                       f"solve {samples[name][-1]['solve']:.2f} s", flush=True)
-    medians = {name: {k: statistics.median(s[k] for s in runs) for k in (*PHASES, "end_to_end")}
+    medians = {name: {k: statistics.median(s[k] for s in runs) for k in (*PHASES, "end_to_end", "solve_cpu", "cpu_besides_solve")}
                | {"files": runs[-1]["files"]} for name, runs in samples.items()}
     text = table(medians, rods)
     print(text)
