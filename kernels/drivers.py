@@ -39,18 +39,19 @@ def module_names(dtype, integrator: str, model: str, dynamic: bool, rod: str, fe
 @functools.cache
 def make_iteration(dtype, nu: int, dynamic: bool):
     """What an iteration of a rod evaluates. Jacobian probes: forward differences in statics
-    (with a coarse first Jacobian), central differences in dynamics (``make_shooting_kernels``)."""
+    (with a first Jacobian over long steps), central differences in dynamics (``make_shooting_kernels``)."""
     nt = make_newton(dtype, nu, dynamic)
     Newton, n_probes = nt.Newton, nt.n_probes
 
     @wp.func
     def coarse_now(nw: Newton, b: int, coarse_jacobian: int, broyden: int):
-        """1 where the probes of this iteration may run coarse: the first Jacobian of a Broyden
-        solve (a rebuild after a failed step, or plain Newton, uses the full grid)."""
+        """The probes' stride (``shoot``'s coarse; 0: the fine grid) this iteration: coarse_jacobian
+        for the first Jacobian of a Broyden solve (a rebuild after a failed step, or plain Newton,
+        uses the fine grid)."""
         if wp.static(dynamic):
             return 0
         if coarse_jacobian != 0 and broyden != 0 and nw.need_jac[b] != 0 and nw.iters[b] == 0:
-            return 1
+            return coarse_jacobian
         return 0
 
     @wp.func

@@ -285,8 +285,8 @@ def make_shoot(dtype, integrator: str, model: str, dynamic: bool, rod: str, feat
     def shoot(x: uvec, md: Model, ct: Control, sp: Step, b: int, store: int, coarse: int, out: Nodes):
         """Integrate base to tip from the scaled unknowns x; return the scaled residual and the
         tip's position and orientation.
-        coarse = 1 (statics, never with store): steps over two intervals wherever no load sits
-        on the node between them, about half the work (the probes of a first Jacobian)."""
+        coarse = c >= 2 (statics, never with store): steps over up to c intervals, stopping at
+        every node where a load sits, about 1/c of the work (the probes of a first Jacobian)."""
         p = vec3()
         R = wp.identity(3, dtype)
         n = vec3(x[0], x[1], x[2]) * md.rod[rf.row(b, md.rod), FORCE_SCALE]
@@ -307,9 +307,10 @@ def make_shoot(dtype, integrator: str, model: str, dynamic: bool, rod: str, feat
         k = int(0)
         while k < n_int:
             k1 = k + 1
-            if coarse != 0 and k + 2 <= n_int:
-                if rf.node_busy(md, b, k1) == 0:
-                    k1 = k + 2
+            while k1 - k < coarse and k1 < n_int:  # over nodes where nothing acts
+                if rf.node_busy(md, b, k1) != 0:
+                    break
+                k1 = k1 + 1
             s = md.grid[ig, k]
             p, R, n, m, q, w, E = interval(md, ct, sp, b, s, md.grid[ig, k1] - s, p, R, n, m, q, w, t0, E, k, store)
             if store != 0:

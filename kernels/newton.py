@@ -171,7 +171,7 @@ def make_probes(dtype, nu: int, central: bool):
 
     @wp.func
     def new_jacobian(nw: Newton, i: int, rt: vec, xi: vec, coarse: int):
-        """J at the trial point xi from the residuals of its probes; coarse = 1: forward
+        """J at the trial point xi from the residuals of its probes; coarse != 0: forward
         differences from the trial point evaluated like the probes (``res[i, n_probes]``)."""
         Jn = mat()
         base = rt
@@ -261,8 +261,9 @@ def make_update(dtype, nu: int, central: bool):
 
         broyden = 1: rank-one updates of J between finite-difference rebuilds (a rebuild when
         a step fails to reduce |r|); broyden = 0: a finite-difference J at every new point.
-        coarse = 1: the probes approximate the problem; their differences are taken from the
-        trial point evaluated the same way (``res[i, n_probes]``), and Broyden corrects the rest.
+        coarse != 0: the probes approximate the problem; their differences are taken from the
+        trial point evaluated the same way (``res[i, n_probes]``, one more integration), and
+        Broyden corrects the rest.
         """
         rt = nw.res[i, 0]
         fl = nw.flags[i]
@@ -270,7 +271,7 @@ def make_update(dtype, nu: int, central: bool):
         fresh = (fl >> 1) & 1
         refreshed = (fl >> 2) & 1
         nj = nw.need_jac[i]
-        nw.n_shoot[i] = nw.n_shoot[i] + 1 + (n_probes - 1) * nj + coarse
+        nw.n_shoot[i] = nw.n_shoot[i] + 1 + (n_probes - 1) * nj + wp.where(coarse != 0, 1, 0)
         it = nw.iters[i] + 1
         nw.iters[i] = it
         finite = wp.isfinite(wp.length_sq(rt))
@@ -317,7 +318,7 @@ def make_newton(dtype, nu: int, central: bool):
     """central: Jacobian by central differences (2 nu probes) instead of forward (nu). With
     forward differences the residual table has one more column: the trial point evaluated like
     the probes, the base of their differences when the probes are a cheaper approximation of the
-    problem (``update(..., coarse=1)``)."""
+    problem (``update(..., coarse)``, coarse != 0)."""
     st = make_newton_state(dtype, nu)
     pr = make_probes(dtype, nu, central)
     n_probes, width = probe_counts(nu, central)

@@ -93,6 +93,28 @@ def test_repeated_solves_reuse_and_match_fresh():
     assert np.abs(again.positions).max() > 0.1
 
 
+@pytest.mark.parametrize("routing", ["straight", "helix"])
+def test_first_jacobian_over_long_steps(routing):
+    """The first Jacobian of a Broyden solve comes from probes over about 4 RK4 steps that stop
+    where a load sits (core/solver.py coarse_stride; here a tendon ending mid-rod): at the
+    straight-rod start it is close to the finite-difference Jacobian on the fine grid (plain
+    Newton's first), and it costs one more (coarse) integration."""
+    if routing == "helix":
+        tendons = [tw.Tendon(routing="helix", helix_radius=0.01, turns=1.0, phase=k * np.pi / 2) for k in range(4)]
+    else:
+        tendons = [tw.Tendon(offset=o) for o in OFFSETS[:3]] + [tw.Tendon(offset=OFFSETS[3], length=0.25)]
+    rob = report_robot(tendons=tendons)
+    tau = np.random.default_rng(3).uniform(0.0, 3.0, (6, 4))
+    for nodes in (10, 50):
+        kw = {"nodes": nodes, "max_iter": 1, "continuation": 0, "stability": "off"}
+        coarse = tw.solve_static(rob, tau, **kw)
+        fine = tw.solve_static(rob, tau, jacobian="newton", **kw)
+        assert np.array_equal(coarse.unknowns, fine.unknowns)  # the same start, one iteration
+        rel = np.linalg.norm(coarse.jacobian - fine.jacobian, axis=(1, 2)) / np.linalg.norm(fine.jacobian, axis=(1, 2))
+        assert rel.max() < (1e-2 if routing == "helix" else 1e-4), rel  # measured: 2e-3 and 5e-6
+        assert (coarse.integrations == fine.integrations + 1).all()
+
+
 @pytest.mark.parametrize("integrator", ["euler", "midpoint", "rk4"])
 def test_unloaded_rod_is_exact_in_float64(integrator):
     """A straight, unloaded rod: every integrator is exact, so the tip sits at L to round-off. A

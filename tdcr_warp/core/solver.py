@@ -39,7 +39,17 @@ from tdcr_warp.kernels.variants import MODELS
 from tdcr_warp.model.robot import Robot
 
 CHECK_EVERY = 4  # CUDA: Newton iterations between reads of the active count
-COARSE_MIN_NODES = 16  # statics: coarse first-Jacobian probes from this many intervals on
+COARSE_MIN_NODES = 16  # statics: the stability verdict's double steps from this many intervals on
+COARSE_STEPS = 4  # statics: the first Jacobian's probes cross the rod in about this many RK4 steps
+
+
+def coarse_stride(n_int: int, integrator: str, dynamic: bool) -> int:
+    """Intervals per step of the first Jacobian's probes in a Broyden solve (0: the fine grid):
+    about COARSE_STEPS RK4 steps over the rod, each stopping at every loaded node. Measured
+    (experiments/bench_integrations.py): the iterations after such a Jacobian barely change
+    (Broyden corrects it), while its 7 integrations cost 4 steps each instead of N."""
+    stride = -(-n_int // COARSE_STEPS)
+    return stride if not dynamic and integrator == "rk4" and stride >= 2 else 0
 
 
 def _fused(driver: str | None, device) -> bool:
@@ -145,10 +155,11 @@ class Shooting:
         self.loop = NewtonLoop(k, device, b, _fused(driver, device))
         self.probe = Probes(self)
         self._evaluate = Replay(k.evaluate, b, device)
-        # statics: the first Jacobian of a Broyden solve from probes over double steps, where that
-        # stays accurate (RK4, error ~h^4, on a fine enough grid; Broyden corrects the rest)
+        # statics: double steps for the stability verdict where that stays accurate (RK4, error ~h^4,
+        # on a fine enough grid); the first Jacobian of a Broyden solve from probes over long steps
         self.coarse_allowed = int(not dynamic and integrator == "rk4" and n1 - 1 >= COARSE_MIN_NODES)
-        self.coarse_jacobian = self.coarse_allowed
+        self.coarse_stride = coarse_stride(n1 - 1, integrator, dynamic)
+        self.coarse_jacobian = self.coarse_stride
         _load_solver_kernels(k, self.loop.fused, dynamic, device)  # before threads race to it
 
     def host(self, arr: wp.array) -> Mirror:
@@ -188,7 +199,7 @@ class Shooting:
         if profile is not None:
             self.host(ct.tau_old).put(profile[..., :K])
             self.host(ct.dtau_old).put(profile[..., K:2 * K])
-        self.coarse_jacobian = self.coarse_allowed if profile is None else 0
+        self.coarse_jacobian = self.coarse_stride if profile is None else 0
 
     def evaluate(self, x: np.ndarray) -> None:
         """One integration per rod from scaled unknowns x (b, nu), storing shapes and slots."""
