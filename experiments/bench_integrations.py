@@ -3,14 +3,15 @@ tdcr_warp in the same run (today's main and the working tree: same-run ratios, o
 
     python experiments/bench_integrations.py --old /tmp/h1/oldpkg [--new DIR] [--batch 4096]
 
-Cases: the report robot (4 straight tendons at 10 mm, gravity, tensions in [0, 3] N) at N = 10,
-20 and 50, each at two tolerances (tol = tier / 2 for the 1e-9 m and 1e-6 m tip tiers), and
+Cases: the report robot (4 straight tendons at 10 mm, gravity, tensions in [0, 3] N) at N = 4,
+10, 20 and 50, each at two tolerances (tol = tier / 2 for the 1e-9 m and 1e-6 m tip tiers), and
 harder families at N = 20: heavier tensions ([0, 10] N), helical routing (one turn), and tip
 forces (up to 0.5 N lateral). Each side runs in its own process from a folder without a
-tdcr_warp package (``PYTHONPATH`` picks the install); sides alternate over ``--repeats`` rounds,
-medians of the timings. The tips of the two sides are compared (max |tip_new - tip_old| [m]),
-which must stay below the tier: a different Jacobian path to the same root moves a tip by at
-most about the stopping rule L |r| < tol.
+tdcr_warp package (``PYTHONPATH`` picks the install); sides alternate over ``--rounds`` rounds,
+medians of the timings: rods/s per CPU-second of the solving process (one thread; a shared
+machine stretches wall time), wall rods/s beside it. The tips of the two sides are compared
+(max |tip_new - tip_old| [m]), which must stay below the tier: a different Jacobian path to
+the same root moves a tip by at most about the stopping rule L |r| < tol.
 """
 
 from __future__ import annotations
@@ -36,6 +37,7 @@ ROBOT = {"length": 0.5, "youngs_modulus": 190e9, "poisson_ratio": 0.3, "radius":
          "gravity": (0.0, 0.0, -9.81)}
 TIERS = (1e-9, 1e-6)
 FAMILIES = {  # name: (nodes, tension range [N], routing, tip force [N])
+    "report N=4": (4, 3.0, "straight", 0.0),
     "report N=10": (10, 3.0, "straight", 0.0),
     "report N=20": (20, 3.0, "straight", 0.0),
     "report N=50": (50, 3.0, "straight", 0.0),
@@ -71,13 +73,15 @@ def worker(name: str, batch: int, tol: float, repeats: int, tips_out: str) -> di
     rob, tau, nodes = _case(name, batch)
     kw = {"nodes": nodes, "tol": tol, "threads": 1, "stability": "off"}
     tw.solve_static(rob, tau[:1] if rob.batch_size == 1 else tau, **kw)
-    times, sol = [], None
+    times, cpu, sol = [], [], None
     for _ in range(repeats):
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         sol = tw.solve_static(rob, tau, **kw)
         times.append(time.perf_counter() - t0)
+        cpu.append(time.process_time() - c0)
     np.save(tips_out, sol.tip_position)
-    return {"seconds": float(np.median(times)), "rods_per_s": batch / float(np.median(times)),
+    return {"seconds": float(np.median(times)), "rods_per_s": batch / float(np.median(cpu)),
+            "rods_per_s_wall": batch / float(np.median(times)),
             "integrations": float(sol.integrations.mean()), "iterations": float(sol.iterations.mean()),
             "max_integrations": int(sol.integrations.max()), "converged": float(sol.converged.mean()),
             "package": str(Path(tw.__file__).parent)}
@@ -149,7 +153,7 @@ def _line(row: dict) -> str:
         if r is None:
             return ""
         return (f"{s}: {r['integrations']:.2f} integrations, {r['iterations']:.2f} iterations, "
-                f"{r['rods_per_s']:,.0f} rods/s, converged {r['converged']:.3f}; ")
+                f"{r['rods_per_s']:,.0f} rods/CPU-s, converged {r['converged']:.3f}; ")
     tail = ""
     if "speedup" in row:
         tail = f"new/old {row['speedup']:.2f}x, max |tip diff| {row['max_tip_difference_m']:.1e} m"

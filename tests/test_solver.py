@@ -105,13 +105,14 @@ def test_first_jacobian_over_long_steps(routing):
         tendons = [tw.Tendon(offset=o) for o in OFFSETS[:3]] + [tw.Tendon(offset=OFFSETS[3], length=0.25)]
     rob = report_robot(tendons=tendons)
     tau = np.random.default_rng(3).uniform(0.0, 3.0, (6, 4))
-    for nodes in (10, 50):
+    for nodes in (4, 10, 50):
         kw = {"nodes": nodes, "max_iter": 1, "continuation": 0, "stability": "off"}
         coarse = tw.solve_static(rob, tau, **kw)
         fine = tw.solve_static(rob, tau, jacobian="newton", **kw)
         assert np.array_equal(coarse.unknowns, fine.unknowns)  # the same start, one iteration
         rel = np.linalg.norm(coarse.jacobian - fine.jacobian, axis=(1, 2)) / np.linalg.norm(fine.jacobian, axis=(1, 2))
-        assert rel.max() < (1e-2 if routing == "helix" else 1e-4), rel  # measured: 2e-3 and 5e-6
+        # measured: helix 2e-3 (N = 10, 50) and 3e-2 (N = 4: two steps over the turn), straight 5e-6
+        assert rel.max() < (1e-4 if routing == "straight" else 1e-2 if nodes > 4 else 5e-2), rel
         assert (coarse.integrations == fine.integrations + 1).all()
 
 

@@ -47,9 +47,9 @@ def coarse_stride(n_int: int, integrator: str, dynamic: bool) -> int:
     """Intervals per step of the first Jacobian's probes in a Broyden solve (0: the fine grid):
     about COARSE_STEPS RK4 steps over the rod, each stopping at every loaded node. Measured
     (experiments/bench_integrations.py): the iterations after such a Jacobian barely change
-    (Broyden corrects it), while its 7 integrations cost 4 steps each instead of N."""
-    stride = -(-n_int // COARSE_STEPS)
-    return stride if not dynamic and integrator == "rk4" and stride >= 2 else 0
+    (Broyden corrects it), while its 7 integrations cost 4 steps each instead of N (N = 4: 2)."""
+    stride = max(2, -(-n_int // COARSE_STEPS))
+    return stride if not dynamic and integrator == "rk4" and n_int >= 4 else 0
 
 
 def _fused(driver: str | None, device) -> bool:
