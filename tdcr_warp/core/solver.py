@@ -40,14 +40,16 @@ from tdcr_warp.model.robot import Robot
 
 CHECK_EVERY = 4  # CUDA: Newton iterations between reads of the active count
 COARSE_MIN_NODES = 16  # statics: the stability verdict's double steps from this many intervals on
-COARSE_STEPS = 4  # statics: the first Jacobian's probes cross the rod in about this many RK4 steps
+COARSE_STEPS = 8  # statics: the first Jacobian's probes cross the rod in about this many RK4 steps
 
 
 def coarse_stride(n_int: int, integrator: str, dynamic: bool) -> int:
     """Intervals per step of the first Jacobian's probes in a Broyden solve (0: the fine grid):
     about COARSE_STEPS RK4 steps over the rod, each stopping at every loaded node. Measured
     (experiments/bench_integrations.py): the iterations after such a Jacobian barely change
-    (Broyden corrects it), while its 7 integrations cost 4 steps each instead of N (N = 4: 2)."""
+    (Broyden corrects it), while its 7 integrations cost 8 steps each instead of N (N < 16: N / 2).
+    4 steps are cheaper still for the report robot, but from strongly bent starts (the stable-branch
+    restarts at 10x the buckling load, tests/test_stability.py) Broyden then finds another root."""
     stride = max(2, -(-n_int // COARSE_STEPS))
     return stride if not dynamic and integrator == "rk4" and n_int >= 4 else 0
 
