@@ -1,7 +1,7 @@
 """Start-up of ``tdcr-warp static examples/seed_robot.toml``, old against new in the same run.
 
-    python experiments/bench_startup.py [--old /tmp/h1/oldpkg] [--new DIR] [--repeats 5]
-        [--cold-repeats 1] [--warmup-args "warmup"] [--json out.json]
+    python experiments/bench_startup.py [--old DIR] [--new DIR] [--repeats 5]
+        [--cold-repeats 1] [--warmup-args "warmup"] [--out results/bench_startup.json] [--smoke]
 
 Both run as ``python -m tdcr_warp`` from a temporary working directory (no tdcr_warp folder in
 it): the old one is the tdcr_warp found on ``--old`` (PYTHONPATH), the new one that on ``--new``,
@@ -22,13 +22,14 @@ every run compiles the package's ~50 modules again, ~0.3-0.6 s).
 
 Prints two Markdown tables, wall and CPU seconds (user + system of the process and its children:
 on a loaded machine closer to what a quiet one would take), each with medians, the range over
-repeats and the new/old ratio. On a shared machine only the same-run ratios mean much.
+repeats and the new/old ratio. On a shared machine only the same-run ratios mean much. Without
+``--old`` only the new side runs. ``--smoke`` (the test suite's): the new side once, warm, with
+the user's own caches (no cold run, no figure).
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import resource
 import shutil
@@ -40,6 +41,10 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path[:0] = [str(ROOT / "experiments")]
+
+from _common import metadata, write_report
+
 SCENE = str(ROOT / "examples" / "seed_robot.toml")
 
 
@@ -59,14 +64,16 @@ def timed(cmd: list[str], env: dict, cwd: str) -> tuple[float, float]:
 class Side:
     """One code version (old or new) with its own kernel and matplotlib caches."""
 
-    def __init__(self, name: str, pythonpath: str | None, tmp: Path):
+    def __init__(self, name: str, pythonpath: str | None, tmp: Path, own_caches: bool = True):
         self.name, self.tmp = name, tmp / name
         self.cwd = self.tmp / "cwd"
-        drop = ("PYTHONPATH", "WARP_CACHE_PATH", "MPLCONFIGDIR", "PYTHONDONTWRITEBYTECODE", "PYTHONPYCACHEPREFIX")
+        drop = ("PYTHONPATH", "PYTHONDONTWRITEBYTECODE", "PYTHONPYCACHEPREFIX")
+        drop += ("WARP_CACHE_PATH", "MPLCONFIGDIR") if own_caches else ()
         self.env = {k: v for k, v in os.environ.items() if k not in drop}
         if pythonpath:
             self.env["PYTHONPATH"] = pythonpath
-        self.env |= {"WARP_CACHE_PATH": str(self.tmp / "warp"), "MPLCONFIGDIR": str(self.tmp / "mpl")}
+        if own_caches:
+            self.env |= {"WARP_CACHE_PATH": str(self.tmp / "warp"), "MPLCONFIGDIR": str(self.tmp / "mpl")}
         self.cwd.mkdir(parents=True)
         where = "import tdcr_warp, tdcr_warp.kernels as k; print(tdcr_warp.__path__[0]); print(k.__path__[0])"
         self.roots = subprocess.run([sys.executable, "-c", where], env=self.env, cwd=self.cwd, capture_output=True,
@@ -99,20 +106,28 @@ def measure(args) -> dict[str, dict[str, list[list[float]]]]:
         print(f"  {row:<45} {side.name}: {sec[0]:6.2f} s wall, {sec[1]:6.2f} s CPU", file=sys.stderr, flush=True)
 
     with tempfile.TemporaryDirectory(prefix="bench_startup_") as tmp:
-        old, new = Side("old", args.old, Path(tmp)), Side("new", args.new, Path(tmp))
+        if args.smoke:
+            new = Side("new", args.new, Path(tmp), own_caches=False)
+            add("warm: `static --no-figures`", new, new.static("--no-figures"))
+            add('`python -c "import tdcr_warp"`', new, new.import_time())
+            return rows
+        old, new = Side("old", args.old, Path(tmp)) if args.old else None, Side("new", args.new, Path(tmp))
+        sides = [s for s in (old, new) if s]
         for _ in range(args.cold_repeats):
-            old.empty_caches()
-            add("cold: first `static` (empty caches)", old, old.static())
+            if old:
+                old.empty_caches()
+                add("cold: first `static` (empty caches)", old, old.static())
             new.empty_caches()
             add("cold: `tdcr-warp " + args.warmup_args + "` (empty caches)", new, new.cli(*args.warmup_args.split()))
             add("cold: first `static` after the set-up", new, new.static())
         if not args.cold_repeats:  # the warm runs' caches, untimed
-            old.empty_caches()
-            new.empty_caches()
-            old.static()
+            for side in sides:
+                side.empty_caches()
+            if old:
+                old.static()
             new.cli(*args.warmup_args.split())
         for _ in range(args.repeats):
-            for side in (old, new):
+            for side in sides:
                 add("warm: `static` (with the figure)", side, side.static())
                 add("warm: `static --no-figures`", side, side.static("--no-figures"))
                 add('`python -c "import tdcr_warp"`', side, side.import_time())
@@ -139,21 +154,21 @@ def table(rows: dict, col: int, what: str) -> str:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--old", default="/tmp/h1/oldpkg", help="PYTHONPATH of the old tdcr_warp")
+    ap.add_argument("--old", help="PYTHONPATH of the old tdcr_warp (default: none, the new side alone)")
     ap.add_argument("--new", help="PYTHONPATH of the new tdcr_warp (default: the one this interpreter imports)")
     ap.add_argument("--repeats", type=int, default=5, help="warm repeats (old and new alternating)")
     ap.add_argument("--cold-repeats", type=int, default=1, help="cold repeats (each empties the caches)")
     ap.add_argument("--warmup-args", default="warmup", help="the new side's set-up command after tdcr-warp")
-    ap.add_argument("--json", help="also write the raw times here")
+    ap.add_argument("--smoke", action="store_true", help="the new side once, warm (for the test suite)")
+    ap.add_argument("--out", default=str(ROOT / "results" / "bench_startup.json"), help="the raw times and tables")
     args = ap.parse_args(argv)
     print(f"{time.strftime('%Y-%m-%d %H:%M:%S')}, load average {os.getloadavg()[0]:.2f}, {os.cpu_count()} CPUs",
           file=sys.stderr)
     rows = measure(args)
-    print(table(rows, 0, "wall"))
-    print()
-    print(table(rows, 1, "CPU: user + system, with child processes"))
-    if args.json:
-        Path(args.json).write_text(json.dumps(rows, indent=1))
+    tables = [table(rows, 0, "wall"), table(rows, 1, "CPU: user + system, with child processes")]
+    print("\n\n".join(tables))
+    write_report(args.out, {"meta": metadata("cpu", old=args.old, new=args.new, load=os.getloadavg()[0]),
+                            "times": rows, "tables": tables})
     return 0
 
 

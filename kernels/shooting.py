@@ -15,6 +15,7 @@ from .drivers import (
     module_names,
 )
 from .integration import N_BASE, make_shoot
+from .jacobi import make_verdict_kernel
 from .newton import make_newton
 from .rod import make_rod_funcs
 from .variants import ALL, INTEGRATORS, STAGES, Features
@@ -42,8 +43,11 @@ def make_shooting_kernels(dtype, integrator: str, model: str, dynamic: bool = Fa
     nu = N_BASE + features.displaced
     nt = make_newton(dtype, nu, dynamic)
     probes = make_probe_kernels(*variant)
+    # statics: the stability verdict shares the evaluate module (both are loaded together)
+    verdict = None if dynamic else make_verdict_kernel(dtype, integrator, model, rod, features)
     return SimpleNamespace(solve=make_fused_kernel(*variant), probe=probes.probe, update=probes.update,
                            finish=probes.finish, begin=probes.begin, evaluate=make_evaluate_kernel(*variant),
+                           verdict=verdict and verdict.kernel, Fields=verdict and verdict.Fields,
                            Model=rf.Model, Control=rf.Control, Step=rf.Step, Nodes=make_shoot(*variant).Nodes,
                            Newton=nt.Newton, vec3=rf.vec3, mat33=rf.mat33, vecu=nt.vec, matu=nt.mat,
                            stages=STAGES[integrator], n_probes=nt.n_probes, width=nt.width, nu=nu, K=rf.K,

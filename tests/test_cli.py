@@ -74,8 +74,9 @@ def test_static_example_outputs_agree_with_api(tmp_path, capsys):
     assert res["batch_size"] == 1 and res["converged"] == [True]
     assert np.shape(res["tip_position"]) == (1, 3) and len(res["iterations"]) == len(res["residual"]) == 1
     rod = res["rods"][0]
-    assert rod.keys() == {"tip_position", "tip_rotation", "converged", "status", "iterations", "residual",
-                          "orthogonality_error", "tendons"}
+    assert rod.keys() == {"tip_position", "tip_rotation", "success", "converged", "status", "iterations", "residual",
+                          "orthogonality_error", "tendons", "stability_index", "stable", "stability_margin", "stability"}
+    assert rod["success"] and rod["stability"] == "stable"  # the verdict is on by default
     assert rod["tendons"][0] == {"tension_base": 3.0, "tension_end": 3.0}  # tension control, no friction
     assert np.shape(rod["tip_position"]) == (3,) and np.shape(rod["tip_rotation"]) == (3, 3)
     assert rod["status"] == "converged" and rod["converged"] is True

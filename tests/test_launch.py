@@ -1,7 +1,7 @@
 """The latency machinery (tdcr_warp/core/launch.py and its users): recorded launches give the
-bits of fresh ones over changed inputs, host mirrors read and write the device arrays, and the
-cheaper host arithmetic (the straight-rod start, the continuation rule, the tension allocation)
-is the old arithmetic. Equality is exact throughout; nothing is timed."""
+bits of fresh ones over changed inputs, host mirrors read and write the device arrays, options
+are validated once, and the cheaper host arithmetic (the straight-rod start, the continuation
+rule, the tension allocation) is the old arithmetic. Equality is exact throughout; nothing is timed."""
 
 import numpy as np
 import pytest
@@ -11,6 +11,7 @@ import tdcr_warp as tw
 from tdcr_warp.core.build import StraightRod, _cross
 from tdcr_warp.core.homotopy import continuation_steps
 from tdcr_warp.core.launch import Mirror, Replay
+from tdcr_warp.physics import statics
 from tdcr_warp.physics.statics import StaticProblem
 
 OFFSETS = [(0.01, 0.0), (0.0, 0.01), (-0.01, 0.0), (0.0, -0.01)]
@@ -140,6 +141,20 @@ def test_replayed_newton_equals_plain_launches():
             plain.coarse_jacobian, m])
         got, want = replayed.results(), plain.results()
         assert all(np.array_equal(got[k], want[k]) for k in want)
+
+
+def test_options_validated_once_per_distinct_overrides():
+    a = statics._options(None, {"nodes": 20, "stability": "off"})
+    assert statics._options(None, {"nodes": 20, "stability": "off"}) is a
+    assert statics._options(None, {}) is statics._options(None, {})
+    base = tw.StaticOptions(nodes=10)
+    assert statics._options(base, {}) is base
+    assert statics._options(base, {"tol": 1e-9}).nodes == 10
+    for _ in range(2):  # 20.0 equals 20 but is not an integer: refused every time
+        with pytest.raises(tw.InputError, match="nodes"):
+            tw.solve_static(report_robot(), [1.0, 0, 0, 0], nodes=20.0)
+        with pytest.raises(tw.InputError, match="max_iter"):
+            tw.solve_static(report_robot(), [1.0, 0, 0, 0], max_iter=[5])
 
 
 def _guess_one_by_one(sr: StraightRod, tensions):

@@ -46,10 +46,21 @@ def test_euler_buckling_loads_of_the_cantilever_within_a_tenth_of_a_percent():
     assert sol.converged.all()
     assert np.abs(sol.tip_position[:, :2]).max() < 1e-12  # the straight branch
     assert sol.stability_index.tolist() == [0, 0, 2, 2, 2, 4]
-    assert sol.lagrangian_error.max() < 1e-8
+    assert sol.lagrangian_error.max() < 1e-5  # see the next test
     assert sol.stable.tolist() == [True, True, False, False, False, False]
     assert all(((st & layout.UNSTABLE) != 0) == (i > 0) for st, i in zip(sol.status, sol.stability_index))
     assert "unstable equilibrium" in sol.failure_reasons()[2]
+
+
+def test_the_fields_stay_lagrangian_to_the_order_of_the_integrator():
+    """U^T V - V^T U is constant along s for exact Jacobi fields, zero from the clamp. RK4's flow
+    map is not symplectic, so the computed asymmetry at the tip is its truncation error: it falls
+    at fourth order as N doubles (a wrong field, e.g. one missing the tendons' part of V, stays
+    near 1e-2)."""
+    loads = [3.0, 5.0]
+    err = [tw.solve_static(robot(loads), nodes=n, rod="kirchhoff", tol=1e-12).lagrangian_error for n in (20, 40)]
+    assert (err[0] / err[1] > 10).all(), err
+    assert (err[1] < 1e-6).all(), err
 
 
 def test_the_stable_branch_past_buckling_is_the_elastica():
@@ -121,3 +132,18 @@ def test_what_the_test_does_not_assess_is_said():
     assert not bad.converged.any() and bad.stability_index.tolist() == [-1]
     with pytest.raises(tw.InputError, match="stability must be one of"):
         tw.solve_static(robot([0.5]), stability="yes")
+
+
+def test_the_verdict_kernels_load_before_the_chunks_threads(monkeypatch):
+    """Two threads loading one Warp module at once can unload the code the other runs (a crash
+    in threaded sweeps): the evaluation module loads before the threads start."""
+    from tdcr_warp.core import solver
+    from tdcr_warp.physics import statics
+
+    events = []
+    real_load, real_parallel = solver.Probes.load, statics.parallel
+    monkeypatch.setattr(solver.Probes, "load", lambda probes: events.append("load") or real_load(probes))
+    monkeypatch.setattr(statics, "parallel", lambda fn, items: events.append(f"threads {len(items)}")
+                        or real_parallel(fn, items))
+    sol = tw.solve_static(robot([0.0]), np.full((64, 0), 0.0), nodes=10, threads=2)
+    assert events == ["load", "threads 2"] and (sol.stability_index == 0).all()

@@ -53,17 +53,18 @@ def test_large_batch_writes_the_table_and_a_summary(large):
     assert sorted(p.name for p in out.iterdir()) == ["results.json", "rods.parquet", "shapes.npz"]
     res = json.loads((out / "results.json").read_text())
     assert "rods" not in res and "tip_position" not in res
-    assert (res["batch_size"], res["converged_rods"], res["failed_rods"], res["failure_reasons"]) == (B, B, 0, {})
+    assert (res["batch_size"], res["converged_rods"], res["unstable_rods"], res["failed_rods"],
+            res["failure_reasons"]) == (B, B, 0, 0, {})
     rods = pd.read_parquet(out / "rods.parquet")
     assert res["files"]["rods.parquet"] == {"rows": B, "columns": {
-        c: "string" if c == "status_text" else str(rods[c].dtype) for c in rods.columns}}
+        c: "string" if c.endswith("_text") else str(rods[c].dtype) for c in rods.columns}}
     assert res["files"]["shapes.npz"]["positions"] == [[B, 9, 3], "float64"]
     assert not documented([*res, *rods.columns]), documented([*res, *rods.columns])
     assert rods["row"].tolist() == list(range(B))
     assert np.array_equal(rods[[f"tip_position[{i}]" for i in range(3)]].to_numpy(), sol.tip_position)
     assert np.array_equal(rods[["tensions[0]", "tensions[1]"]].to_numpy(), TAU)
     assert np.array_equal(rods[["tension_base[0]", "tension_base[1]"]].to_numpy(), sol.tendon_tension_base)
-    for key in ("converged", "status", "iterations", "integrations", "residual", "orthogonality_error"):
+    for key in ("success", "converged", "status", "iterations", "integrations", "residual", "orthogonality_error"):
         assert np.array_equal(rods[key].to_numpy(), getattr(sol, key)), key
     assert set(rods["status_text"]) == {"converged"}
     meta = json.loads(pq.read_schema(out / "rods.parquet").metadata[b"tdcr_warp"])
@@ -109,8 +110,9 @@ def test_failed_rods_are_counted_by_reason(tmp_path, capsys):
     assert main(["static", str(tmp_path / "s.toml"), "--out", str(tmp_path / "o"), "--no-figures"]) == 1
     res = json.loads((tmp_path / "o" / "results.json").read_text())
     rods = pd.read_parquet(tmp_path / "o" / "rods.parquet")
-    failed = rods[~rods["converged"]]
+    failed = rods[~rods["success"]]
     assert res["failed_rods"] == len(failed) > 0 and res["converged_rods"] == B - len(failed)
+    assert not failed["converged"].any() and res["unstable_rods"] == 0
     assert res["failure_reasons"] == failed["status_text"].astype(str).value_counts().to_dict()
     assert set(failed["status_text"]) == {"iteration cap reached"}
     assert "(per rod in rods.parquet)" in capsys.readouterr().err
@@ -130,8 +132,10 @@ def test_optional_columns_hold_the_solution(tmp_path):
     for column, array in [("free_length[1]", sol.tendon_free_length[:, 1]), ("slack[0]", sol.slack[:, 0]),
                           ("tip_error_estimate", sol.tip_error_estimate), ("stable", sol.stable),
                           ("stability_index", sol.stability_index), ("branch", sol.branch),
-                          ("lagrangian_error", sol.lagrangian_error), ("multiple_stable", sol.multiple_stable)]:
-        assert np.array_equal(rods[column].to_numpy(), array), column
+                          ("lagrangian_error", sol.lagrangian_error), ("multiple_stable", sol.multiple_stable),
+                          ("stability_margin", sol.stability_margin), ("success", sol.success)]:
+        assert np.array_equal(rods[column].to_numpy(), array, equal_nan=array.dtype.kind == "f"), column
+    assert rods["stability_text"].astype(str).tolist() == sol.stability_reasons()
 
 
 def test_ik_large_batch_writes_its_table(large, tmp_path, capsys):

@@ -259,6 +259,7 @@ class TipController:
         self.C, self.k, self.eps, self.phi, self.tau_max, self.Ci = _gains(B, K, gain_c, gain_k, epsilon, phi,
                                                                            tension_max, gain_i)
         self.ie = np.zeros((B, 3))  # the integral of the tip error [m s] (method "integral")
+        self.model_unstable = np.zeros(B, dtype=bool)  # a linearisation landed on an unstable equilibrium
         self.model_every = model_every
         self._static = None
         self._J = None
@@ -321,6 +322,7 @@ class TipController:
             u = u.copy()
             u[bad] = self._u_lin[bad]
         self._static, self._J, self._p0, self._u_lin = base, base.tip_jacobian[:, :3], base.tip_position, u.copy()
+        self.model_unstable |= base.converged & ~base.success
         if disp:
             gap = np.where(base.slack, self._reference - u - base.tendon_free_length, 0.0)
             self._lin = {"q": self._u_lin, "tension": base.tendon_tension_base, "tension_jacobian": base.tension_jacobian,
@@ -372,7 +374,9 @@ class ControlRun:
     (B, 3) (where the desired path starts), desired (T+1, B, 3) [m] (the desired tip);
     displacements (T, B, K) [m]: the commanded motor displacements (empty when tensions are);
     shape_steps (S,), positions (S, B, N+1, 3) [m] and rotations (S, B, N+1, 3, 3): the shapes
-    every ``shapes_every`` steps (empty if 0)."""
+    every ``shapes_every`` steps (empty if 0); model_unstable (B,): the controller's model was
+    linearised about an equilibrium the stability verdict found unstable at least once (its
+    Jacobian then describes a shape the robot would leave)."""
 
     time: np.ndarray
     tip_position: np.ndarray
@@ -387,6 +391,7 @@ class ControlRun:
     shape_steps: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int32))
     positions: np.ndarray = field(default_factory=lambda: np.zeros((0, 0, 0, 3)))
     rotations: np.ndarray = field(default_factory=lambda: np.zeros((0, 0, 0, 3, 3)))
+    model_unstable: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
 
     def to_npz(self, path) -> None:
         np.savez_compressed(path, **asdict(self))
@@ -442,7 +447,8 @@ def run_closed_loop(sim: Simulator, controller: TipController, steps: int, *, pr
                       error=desired - tip, sliding=S, tensions=taus, converged=conv,
                       target=controller.target.copy(), desired=desired, displacements=qs, shape_steps=np.array(shape_steps, dtype=np.int32),
                       positions=np.array([p for p, _ in shapes]) if shapes else np.zeros((0, B, n1, 3)),
-                      rotations=np.array([R for _, R in shapes]) if shapes else np.zeros((0, B, n1, 3, 3)))
+                      rotations=np.array([R for _, R in shapes]) if shapes else np.zeros((0, B, n1, 3, 3)),
+                      model_unstable=controller.model_unstable.copy())
 
 
 def control_metrics(run: ControlRun, tension_max: np.ndarray, band: float = 5e-4) -> dict[str, np.ndarray]:

@@ -117,8 +117,9 @@ def predict(scene: Scene, meas: Measurements, device=None, initial=None, **overr
     did not converge) each such row again from the solution of the row before it in the same
     file, the way the robot was recorded: every keypoint settled from the last. Returns
     ``point_mm`` (M, 3) the predicted measured point, ``error_mm`` (M, 3) predicted less
-    measured, ``converged`` (M,), ``slack`` (M, K), ``retried`` (M,) bool, the ``solution`` and the
-    solve time ``wall_s``."""
+    measured, ``converged`` (M,), ``unstable`` (M,) bool (converged to an equilibrium the stability
+    verdict found unstable: not a trustworthy prediction), ``slack`` (M, K), ``retried`` (M,) bool, the
+    ``solution`` and the solve time ``wall_s``."""
     hw = _hardware(scene)
     t0 = time.perf_counter()
     q = meas.servo_mm * 1e-3
@@ -142,8 +143,9 @@ def predict(scene: Scene, meas: Measurements, device=None, initial=None, **overr
     wall = time.perf_counter() - t0
     point = 1e3 * (sol.tip_position + np.array(hw.get("marker_offset", [0, 0, 0])) +
                    np.array(hw.get("base_offset", [0, 0, 0])))
-    return {"point_mm": point, "error_mm": point - meas.tip_mm, "converged": sol.converged, "slack": sol.slack,
-            "retried": retried, "solution": sol, "wall_s": wall}
+    return {"point_mm": point, "error_mm": point - meas.tip_mm, "converged": sol.converged,
+            "unstable": sol.converged & ~sol.success, "slack": sol.slack, "retried": retried, "solution": sol,
+            "wall_s": wall}
 
 
 def metrics(error_mm: np.ndarray, converged: np.ndarray, length_m: float) -> dict:

@@ -6,7 +6,9 @@ the command bounds (``box_least_squares``), e the tip error [m] (with an orienta
 also L times the rotation error [rad]); a step that reduces |e| is taken and lam shrinks, one
 that does not is refused and lam grows. A rod is done when |e| < tol (reached), when no step
 within the bounds reduces |e| (unreachable: the point returned is the closest the iteration
-found, a local minimum of the distance over the bounded commands), or when its statics fail.
+found, a local minimum of the distance over the bounded commands; no step: the projected
+gradient vanishes, or a step is refused whose predicted gain is below the statics' tolerance,
+where the statics' rounding decides), or when its statics fail.
 
 The commands are tensions [N] (tension control, lower bound 0, upper ``tension_max``) and motor
 displacements [m] (displacement control, within ``displacement_range``). The start is the
@@ -36,7 +38,8 @@ KKT_TOL = 1e-7  # |projected gradient| / (|J| |e|) of a bounded local minimum
 class IKResult:
     """Per rod: command (B, K) tensions [N] / displacements [m] (by each tendon's control);
     tip_position (B, 3) [m], tip_rotation (B, 3, 3) at it; position_error (B,) |target - tip|
-    [m]; orientation_error (B,) [rad] (0 without an orientation target); success (B,) bool;
+    [m]; orientation_error (B,) [rad] (0 without an orientation target); success (B,) bool
+    (reached, on an equilibrium not found unstable: steps onto unstable ones are refused);
     reason: per rod "reached", "unreachable" (the closest point found is returned), "statics
     failed" or "iteration cap"; iterations (B,) Jacobian evaluations; solution: the statics at
     the returned commands."""
@@ -173,6 +176,15 @@ def _bounded_minimum(J: np.ndarray, e: np.ndarray, cmd: np.ndarray, lo: np.ndarr
     return np.linalg.norm(free, axis=1) <= KKT_TOL * np.linalg.norm(J, axis=(1, 2)) * np.linalg.norm(e, axis=1)
 
 
+def _no_step_left(J, e, step, cmd, lam, better, statics_tol: float) -> np.ndarray:
+    """(B,) bool: no step is left to try: the damping passed LAM_MAX, the step vanished, or a
+    refused step (not ``better``) had a predicted gain |e| - |e - J step| within the statics'
+    tolerance [m] (its refusal is the statics' rounding, not the model's error)."""
+    gain = np.linalg.norm(e, axis=1) - np.linalg.norm(e - np.einsum("bik,bk->bi", J, step), axis=1)
+    tiny = np.abs(step).max(axis=1) <= 1e-15 * (1 + np.abs(cmd).max(axis=1))
+    return (lam > LAM_MAX) | tiny | (~better & (gain <= statics_tol))
+
+
 def solve_ik(robot: Robot, target, *, target_rotation=None, tension_max=np.inf, displacement_range=None,
              tol: float = 1e-9, max_iter: int = 40, initial=None, options: StaticOptions | None = None,
              device: str | None = None, **overrides) -> IKResult:
@@ -223,7 +235,7 @@ def solve_ik(robot: Robot, target, *, target_rotation=None, tension_max=np.inf, 
     for _ in range(max_iter):
         failed = ~done & ~sol.converged
         reason[failed], done[failed] = FAILED, True
-        hit = ~done & (np.linalg.norm(e[:, :3], axis=1) < tol) & (L * eo < tol)
+        hit = ~done & sol.success & (np.linalg.norm(e[:, :3], axis=1) < tol) & (L * eo < tol)
         reason[hit], done[hit] = REACHED, True
         if done.all():
             break
@@ -239,17 +251,17 @@ def solve_ik(robot: Robot, target, *, target_rotation=None, tension_max=np.inf, 
         iters += ~done
         new = solve(trial, sol)
         en, eon = error(new)
-        better = ~done & new.converged & (np.linalg.norm(en, axis=1) < np.linalg.norm(e, axis=1))
+        better = ~done & new.success & (np.linalg.norm(en, axis=1) < np.linalg.norm(e, axis=1))
         cmd = np.where(better[:, None], trial, cmd)
         sol = sol.replaced(np.flatnonzero(better), new.rows(better))
         e, eo = np.where(better[:, None], en, e), np.where(better, eon, eo)
         lam = np.where(better, lam / 3.0, np.where(done, lam, lam * 10.0))
-        stuck = ~done & ((lam > LAM_MAX) | (np.abs(step).max(axis=1) <= 1e-15 * (1 + np.abs(cmd).max(axis=1))))
+        stuck = ~done & _no_step_left(J, e, step, cmd, lam, better, opts.tol)
         reason[stuck], done[stuck] = UNREACHABLE, True
-    hit = (reason == CAPPED) & sol.converged & (np.linalg.norm(e[:, :3], axis=1) < tol) & (L * eo < tol)
+    hit = (reason == CAPPED) & sol.success & (np.linalg.norm(e[:, :3], axis=1) < tol) & (L * eo < tol)
     reason[hit] = REACHED
     pe = np.linalg.norm(tgt - sol.tip_position, axis=1)
-    success = (reason == REACHED) & sol.converged
+    success = (reason == REACHED) & sol.success
     return IKResult(command=cmd, tip_position=sol.tip_position.copy(), tip_rotation=sol.tip_rotation.copy(),
                     position_error=pe, orientation_error=eo, success=success, reason=[str(r) for r in reason],
                     iterations=iters, solution=sol)

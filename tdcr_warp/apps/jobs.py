@@ -24,12 +24,12 @@ __all__ = ["SweepJob", "constant_curvature_tip", "control_job", "convex_hull_2d"
 
 
 def static_job(scene: Scene, device=None, shapes: bool = False) -> dict[str, np.ndarray]:
-    """Compact per-rod statics: tip pose, convergence, status bits, iterations, residual,
-    tensions; with ``shapes`` also the backbone positions (B, N+1, 3); with the solver's
-    ``stability`` the stability index (and branch), with ``sensitivities`` the tip Jacobian and
-    compliance."""
+    """Compact per-rod statics: tip pose, success (converged and not unstable), status bits,
+    iterations, residual, tensions; with ``shapes`` also the backbone positions (B, N+1, 3); the
+    stability index (and branch) unless the solver's ``stability`` is off, with ``sensitivities``
+    the tip Jacobian and compliance."""
     sol = solve_static(scene.robot, scene.tensions, options=scene.options, device=device, **scene.static_command())
-    out = {"tip_position": sol.tip_position, "tip_rotation": sol.tip_rotation, "ok": sol.converged,
+    out = {"tip_position": sol.tip_position, "tip_rotation": sol.tip_rotation, "ok": sol.success,
            "status": sol.status, "iterations": sol.iterations, "residual": sol.residual, "tensions": scene.tensions,
            "tension_base": sol.tendon_tension_base, "tension_end": sol.tendon_tension_end}
     if sol.slack is not None:

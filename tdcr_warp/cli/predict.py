@@ -22,7 +22,7 @@ from tdcr_warp.cli.common import (
 from tdcr_warp.model.robot import InputError
 
 # The units of predict's metrics.json entries (hardware.metrics; "1": a count, "%": of the robot's length).
-PREDICT_UNITS = {"rows": "1", "converged": "1", "rmse_mm": "mm", "rmse_aligned_mm": "mm", "median_mm": "mm",
+PREDICT_UNITS = {"rows": "1", "converged": "1", "unstable": "1", "rmse_mm": "mm", "rmse_aligned_mm": "mm", "median_mm": "mm",
                  "p95_mm": "mm", "mean_offset_mm": "mm", "rmse_percent_of_length": "%", "wall_time_s": "s",
                  "kernel_load_s": "s", "ms_per_row": "ms"}
 
@@ -56,10 +56,12 @@ def run(args) -> int:
     print(f"predicted {len(meas)} rows in {pred['wall_s']:.2f} s ({1e3 * pred['wall_s'] / len(meas):.2f} ms per row, "
           f"one batched solve; kernel loading excluded): RMSE {m['rmse_mm']:.2f} mm, "
           f"aligned {m['rmse_aligned_mm']:.2f} mm, "
-          f"median {m['median_mm']:.2f} mm, p95 {m['p95_mm']:.2f} mm, {m['converged']} of {m['rows']} converged")
+          f"median {m['median_mm']:.2f} mm, p95 {m['p95_mm']:.2f} mm, {m['converged']} of {m['rows']} converged"
+          + (f", {int(pred['unstable'].sum())} of them on unstable equilibria" if pred["unstable"].any() else ""))
     write_predictions(out / "predictions.csv", meas, pred)
     plot_prediction(meas.tip_mm, pred["point_mm"], pred["converged"], out / "predict.png")
-    write_json(out / "metrics.json", m | {"scene": str(args.scene), "data": [str(d) for d in args.data],
+    write_json(out / "metrics.json", m | {"unstable": int(pred["unstable"].sum()),
+                                          "scene": str(args.scene), "data": [str(d) for d in args.data],
                                           "wall_time_s": pred["wall_s"], "kernel_load_s": load_s,
                                           "ms_per_row": 1e3 * pred["wall_s"] / len(meas),
                                           "units": PREDICT_UNITS,
@@ -77,11 +79,11 @@ def write_predictions(path: Path, meas, pred: dict) -> None:
         with open(tmp, "w", newline="") as f:
             w = csv.writer(f)
             w.writerow(["row", "source", "pattern_label", "pred_x_mm", "pred_y_mm", "pred_z_mm", "meas_x_mm",
-                        "meas_y_mm", "meas_z_mm", "error_mm", "converged", "retried"]
+                        "meas_y_mm", "meas_z_mm", "error_mm", "converged", "unstable", "retried"]
                        + [f"slack_{k}" for k in range(K)])
             err = np.linalg.norm(pred["error_mm"], axis=1)
             for i in range(len(meas)):
                 w.writerow([i, meas.source[i], meas.labels[i], *np.round(pred["point_mm"][i], 6).tolist(),
                             *meas.tip_mm[i].tolist(), round(float(err[i]), 6), int(pred["converged"][i]),
-                            int(pred["retried"][i])] + [int(x) for x in (pred["slack"][i] if K else [])])
+                            int(pred["unstable"][i]), int(pred["retried"][i])] + [int(x) for x in (pred["slack"][i] if K else [])])
     write_atomic(path, write)

@@ -57,7 +57,7 @@ def run(args) -> int:
     reasons = _status_words(sol.status)
     print(f"solved {B} rod(s) in {wall:.3f} s ({B / wall:,.0f} rods/s, kernel loading excluded; "
           f"{scene.options.integrator}, N = {scene.options.nodes}, {scene.options.model}, {scene.options.precision})")
-    print_rods(sol.tip_position, sol.converged, sol.iterations, sol.residual, reasons)
+    print_rods(sol.tip_position, sol.success, sol.iterations, sol.residual, reasons)
     t0 = time.perf_counter()
     small = B <= JSON_RODS
     files = {"shapes.npz": write_arrays(out / "shapes.npz", sol)}
@@ -70,18 +70,19 @@ def run(args) -> int:
         _plot(scene, sol, out)
     if args.html:
         _html(scene, sol, out)
-    failed = ~sol.converged
+    failed = ~sol.success  # not converged, or an unstable equilibrium
     results = {
         "scene": str(args.scene), "settings": settings(scene, args.device or "default"),
         "batch_size": B, "wall_time_s": wall, "kernel_load_s": load_s, "scene_load_s": scene_s, "write_s": write_s,
-        "converged_rods": B - int(failed.sum()), "failed_rods": int(failed.sum()),
+        "converged_rods": int(sol.converged.sum()), "unstable_rods": int((sol.converged & failed).sum()),
+        "failed_rods": int(failed.sum()),
         "failure_reasons": dict(Counter(reasons[b] for b in np.flatnonzero(failed))), "files": files,
     } | (_rods_json(sol, reasons) if small else {})
     write_json(out / "results.json", results)  # last: its presence means the run is complete
     print(f"wrote {out}/results.json, {', '.join(files)}{'' if args.no_figures else ', shapes.png'}")
     if failed.any():
         why = ", ".join(f"{n} x {reason}" for reason, n in results["failure_reasons"].items())
-        print(f"tdcr-warp: {int(failed.sum())} of {B} rods did not converge: {why} (per rod in "
+        print(f"tdcr-warp: {int(failed.sum())} of {B} rods did not converge or are unstable: {why} (per rod in "
               f"{'results.json' if small else ROD_TABLE})", file=sys.stderr)
         return 1
     return 0
@@ -107,7 +108,8 @@ def _rod_arrays(scene, sol) -> dict:
     res |= {"tension_base": sol.tendon_tension_base, "tension_end": sol.tendon_tension_end}
     optional = {"path_length": sol.tendon_path_length, "free_length": sol.tendon_free_length, "slack": sol.slack,
                 "turning": sol.tendon_turning, "slip": sol.slip, "tip_error_estimate": sol.tip_error_estimate,
-                "stability_index": sol.stability_index, "stable": sol.stable, "lagrangian_error": sol.lagrangian_error,
+                "stability_index": sol.stability_index, "stable": sol.stable, "stability_margin": sol.stability_margin,
+                "lagrangian_error": sol.lagrangian_error,
                 "branch": sol.branch, "multiple_stable": sol.multiple_stable}
     return res | {k: v for k, v in optional.items() if v is not None}
 
@@ -115,29 +117,33 @@ def _rod_arrays(scene, sol) -> dict:
 def _write_rod_table(path: Path, scene, sol, reasons: list[str]) -> dict:
     """rods.parquet: one row per rod, a (B, K) array one column per tendon (``key[k]``), as the
     sweeps' tables."""
-    first = {"converged": sol.converged, "status": sol.status, "status_text": reasons}
+    first = {"success": sol.success, "converged": sol.converged, "status": sol.status, "status_text": reasons}
+    if sol.stability_index is not None:
+        first["stability_text"] = sol.stability_reasons()
     return write_rod_table(path, "static", first, _rod_arrays(scene, sol))
 
 
 def _rods_json(sol, reasons: list[str]) -> dict:
     """The per-rod keys of results.json (batches of at most JSON_RODS rods)."""
-    B = len(sol.converged)
+    B, stability = len(sol.converged), sol.stability_reasons()
     return {
         "tip_position": sol.tip_position.tolist(), "converged": sol.converged.tolist(),
         "iterations": sol.iterations.tolist(), "residual": sol.residual.tolist(),
         "rods": [{"tip_position": sol.tip_position[b].tolist(), "tip_rotation": sol.tip_rotation[b].tolist(),
-                  "converged": bool(sol.converged[b]), "status": reasons[b],
+                  "success": bool(sol.success[b]), "converged": bool(sol.converged[b]), "status": reasons[b],
                   "iterations": int(sol.iterations[b]), "residual": float(sol.residual[b]),
                   "orthogonality_error": float(sol.orthogonality_error[b]), "tendons": _tendon_rows(sol, b)}
-                 | _sensitivity_row(sol, b) for b in range(B)],
+                 | _sensitivity_row(sol, b, stability) for b in range(B)],
     }
 
 
-def _sensitivity_row(sol, b: int) -> dict:
-    """Rod b's stability verdict and (with sensitivities) its tip Jacobian and compliance."""
+def _sensitivity_row(sol, b: int, stability: list[str] | None) -> dict:
+    """Rod b's stability verdict (``stability``: sol.stability_reasons()) and (with sensitivities)
+    its tip Jacobian and compliance."""
     row = {}
     if sol.stability_index is not None:
-        row |= {"stability_index": int(sol.stability_index[b]), "stable": bool(sol.stable[b])}
+        row |= {"stability_index": int(sol.stability_index[b]), "stable": bool(sol.stable[b]),
+                "stability_margin": float(sol.stability_margin[b]), "stability": stability[b]}
         if sol.branch is not None:
             row |= {"branch": int(sol.branch[b]), "multiple_stable": bool(sol.multiple_stable[b])}
     if sol.tip_jacobian is not None:

@@ -339,12 +339,19 @@ class Probes:
         return (wp.zeros(sh.b, dtype=k.vecu, device=d), wp.zeros(sh.b, dtype=k.vec3, device=d),
                 wp.zeros(sh.b, dtype=k.mat33, device=d))
 
+    def load(self) -> None:
+        """Load the evaluation kernel's module (the probes', and the stability verdict's; a compile
+        says so on stderr, as the solver's do). Call it before threads share the problem: two
+        threads loading one module at once can unload the code the other runs (a crash seen in
+        threaded sweeps with the verdict on)."""
+        _load_modules((self.sh.kern.evaluate,), self.sh.device)
+
     @functools.cached_property
     def nodes(self):
         """The shapes of a probe; made with the first probe, which also loads the evaluation
-        kernel (once per Shooting, not per probe; a compile says so on stderr, as the solver's do)."""
+        kernel (once per Shooting, not per probe)."""
+        self.load()
         sh = self.sh
-        _load_modules((sh.kern.evaluate,), sh.device)
         return make_state(sh.kern, sh.dev, sh.b, sh.n1, sh.dynamic)
 
     def __call__(self, x: np.ndarray, model=None, *, shapes: bool = False) -> dict[str, np.ndarray]:

@@ -83,10 +83,11 @@ class StaticOptions:
     integrated anyway).
     sensitivities: also return the tip Jacobian of the commands and the tip compliance per rod
     (tdcr_warp/physics/sensitivity.py; one probe integration per unknown and per tension-controlled
-    tendon). stability: "off", "check" (the Jacobi test of every converged rod:
-    tdcr_warp/physics/stability.py; an unstable one is flagged UNSTABLE) or "stable" (check, and where
-    an equilibrium is unstable search for a stable one by restarts, reporting which branch was
-    returned).
+    tendon). stability: "check" (the default: the Jacobi test of every converged rod on the
+    device, tdcr_warp/physics/stability.py, about 1 + nu integrations more; an unstable one is
+    flagged UNSTABLE and is not a success), "stable" (check, and where an equilibrium is unstable
+    search for a stable one by restarts, reporting which branch was returned) or "off" (the bare
+    solve, no verdict).
     """
 
     nodes: int = 50
@@ -106,7 +107,7 @@ class StaticOptions:
     kink_loads: bool = True
     tendon_states: bool = False
     sensitivities: bool = False
-    stability: str = "off"
+    stability: str = "check"
 
     def __post_init__(self):
         def integer(v, low, high=10**9):

@@ -189,8 +189,9 @@ _TABLES = (
             default=False, checked_by="StaticOptions"),
         Key("sensitivities", "bool", "-", "also return the tip Jacobian and compliance per rod", default=False,
             checked_by="StaticOptions"),
-        Key("stability", "string", "-", "the Jacobi stability test: off, flag unstable rods, or search a stable "
-            "branch", default="off", allowed=("off", "check", "stable"), checked_by="StaticOptions"),
+        Key("stability", "string", "-", "the Jacobi stability test: flag unstable rods (check), also search a "
+            "stable branch (stable), or none (off)", default="check", allowed=("off", "check", "stable"),
+            checked_by="StaticOptions"),
     )),
     Table("dynamics", "Time stepping (`tdcr-warp simulate`, `control`); an empty table is none.", keys=(
         Key("dt", "number", "s", "time step", "", REQUIRED),

@@ -1,11 +1,9 @@
-"""What a static solve adds to a solved chunk of rods on request: its sensitivities and the
-stability test's verdict (``linearised``), and for rods found unstable a search for a stable
-equilibrium from restarts (``stable_branch``).
+"""What a static solve adds to a solved chunk of rods: on request its sensitivities, by default the
+stability test's verdict (``assess``), and for rods found unstable, on request, a search for a
+stable equilibrium from restarts (``stable_branch``).
 """
 
 from __future__ import annotations
-
-import functools
 
 import numpy as np
 
@@ -16,7 +14,7 @@ from tdcr_warp.model.options import StaticOptions
 from tdcr_warp.model.robot import Robot
 from tdcr_warp.physics.sensitivity import linearise
 from tdcr_warp.physics.slack import settle_slack
-from tdcr_warp.physics.stability import jacobi_index, node_routing
+from tdcr_warp.physics.stability import Verdict
 
 __all__ = ["DISTINCT", "RESTARTS", "Assessor"]
 
@@ -34,41 +32,49 @@ class Assessor:
 
     def __init__(self, robot: Robot, tables: Tables, opts: StaticOptions):
         self.robot, self.tables, self.opts = robot, tables, opts
+        self.verdicts: dict[int, Verdict] = {}  # per Shooting (id), made on first use
 
-    @functools.cached_property
-    def node_routes(self) -> tuple[np.ndarray, np.ndarray]:
-        """r and r' of every tendon at the grid's nodes (tdcr_warp.physics.stability.node_routing), once."""
-        return node_routing(self.robot, self.tables.grid)
+    @property
+    def unassessed(self) -> str:
+        """Why the stability test does not apply to this batch ("" where it does)."""
+        if self.tables.features.friction:
+            return "friction (not conservative)"
+        if self.opts.model != "coupled" and self.robot.n_tendons:
+            return "point-model tendon loads (follower forces)"
+        return ""
 
-    def linearised(self, sh: Shooting, lo: int, hi: int, tau: np.ndarray, taut: np.ndarray, res: dict,
-                   ptables: list, stability: str) -> dict:
-        """The sensitivities and (``stability``) the Jacobi index of rods lo:hi from their
-        solution ``res`` (the base of the probes: its shapes and residual); taut (b, K) the taut set."""
+    def assess(self, sh: Shooting, lo: int, hi: int, tau: np.ndarray, taut: np.ndarray, res: dict,
+               ptables: list, sensitivities: bool, stability: str) -> dict:
+        """Rods lo:hi from their solution ``res``: with ``sensitivities`` (or parameters) the
+        sensitivities (tdcr_warp.physics.sensitivity.linearise, probes from the solution), and unless
+        ``stability`` is "off" the stability verdict on the device (tdcr_warp.physics.stability:
+        index -1 where it is not assessed); taut (b, K) the taut set. The integrations add up."""
         t, o = self.tables, self.opts
-        base = {"res": sh.newton.r.numpy().astype(np.float64), "p": res["positions"][:, -1],
-                "R": res["rotations"][:, -1], "P": res["positions"], "Rn": res["rotations"], "n": res["n"],
-                "m": res["m"]}
-        K = tau.shape[1]
-        assess = stability != "off" and not t.features.friction and (o.model == "coupled" or K == 0)
-        lin = linearise(sh, tau, t, lo, hi, o.precision, ptables, base=base, shapes=assess)
         b = hi - lo
-        out = {k: lin[k] for k in ("tip_jacobian", "tip_compliance", "parameter_jacobian")}
-        out["tension_jacobian"] = np.where(taut[:, :, None], lin["tension_jacobian"], 0.0)  # slack: no tension
-        out["slack_jacobian"] = np.where(taut[:, :, None], 0.0, lin["slack_jacobian"])
+        out = {"integrations": res["integrations"]}
+        if sensitivities:
+            base = {"res": sh.newton.r.numpy().astype(np.float64), "p": res["positions"][:, -1],
+                    "R": res["rotations"][:, -1]}
+            lin = linearise(sh, tau, t, lo, hi, o.precision, ptables, base=base)
+            out |= {k: lin[k] for k in ("tip_jacobian", "tip_compliance", "parameter_jacobian")}
+            out["tension_jacobian"] = np.where(taut[:, :, None], lin["tension_jacobian"], 0.0)  # slack: no tension
+            out["slack_jacobian"] = np.where(taut[:, :, None], 0.0, lin["slack_jacobian"])
+            out["integrations"] = out["integrations"] + lin["integrations"]
         if stability != "off":
-            index, lag = np.full(b, -1, dtype=np.int64), np.full(b, np.nan)
-            if assess:
-                tension = res["tendons"][..., layout.TO_BASE] if "tendons" in res else tau
-                index, lag, _ = jacobi_index(sh, lin, t, self.node_routes, lo, hi, tension, o.precision,
-                                             o.rod == "kirchhoff", o.model == "coupled",
-                                             taut if t.features.displaced else None)
-                index = np.where(res["converged"], index, -1)
-            out |= {"stability_index": index, "lagrangian_error": lag}
-        out["integrations"] = res["integrations"] + lin["integrations"]
+            ok = res["converged"].astype(bool)
+            if self.unassessed:
+                out |= {"stability_index": np.full(b, -1, dtype=np.int64), "lagrangian_error": np.full(b, np.nan),
+                        "stability_margin": np.full(b, np.nan)}
+            else:
+                if id(sh) not in self.verdicts:
+                    self.verdicts[id(sh)] = Verdict(sh, t, o.precision, bool(sh.coarse_allowed))
+                v = self.verdicts[id(sh)](ok, taut if t.features.displaced else None)
+                out |= {k: v[k] for k in ("stability_index", "lagrangian_error", "stability_margin")}
+                out["integrations"] = out["integrations"] + np.where(ok, 1 + t.nu, 0)
         return out
 
     def stable_branch(self, sh: Shooting, lo: int, hi: int, tau: np.ndarray, taut: np.ndarray, res: dict,
-                      ptables: list, newton: dict, disp: np.ndarray, j_of: np.ndarray) -> dict:
+                      ptables: list, sensitivities: bool, newton: dict, disp: np.ndarray, j_of: np.ndarray) -> dict:
         """Rods whose equilibrium is unstable are solved again from restarts (``RESTARTS``: the
         solution with an added base moment about each bending axis, both ways, of growing
         size); the first stable equilibrium found is returned (branch 1), distinct
@@ -96,7 +102,7 @@ class Assessor:
             out["iterations"] = out["iterations"] + np.where(bad, it, 0)
             out["integrations"] = out["integrations"] + np.where(bad, sn, 0)
             got = sh.results()
-            got |= self.linearised(sh, lo, hi, tau, taut, got, ptables, "check")
+            got |= self.assess(sh, lo, hi, tau, taut, got, ptables, sensitivities, "check")
             ok = bad & got["converged"] & (got["stability_index"] == 0)
             for i in np.flatnonzero(ok):
                 tip = got["positions"][i, -1]

@@ -11,18 +11,20 @@ is the end that moves, so every crossing has the same sign (the Legendre conditi
 stiffness, and the tendons' convex path-length terms, are positive definite), and the index
 counts crossings with their multiplicity (a round rod buckles in two planes at once).
 
-The fields come from the shooting problem itself: the 12-dimensional solution space of the
-linearised equations is spanned by the 6 probes of the base wrench (tdcr_warp/physics/sensitivity.py),
-3 translations of the whole rod (exact: nothing depends on where the rod is) and 3 rotations
-of it (exact for the rod and its tendons; dead distributed and point loads are rotated back by
-one probe each). The tip condition (the momenta vanish at L: no change of the tip load) picks a
-6-dimensional subspace, a Lagrangian plane (U(s), V(s)): U the position and rotation, V the
-conjugate momenta, the change of the total internal force n + sum tau t and of the total
-moment less half the rotation crossed with it (the term of the rotations' second order). The
-conjugate points are where U is singular: where the unitary W = (V + iU)(V - iU)^-1 has an
-eigenvalue 1; the index counts the eigenvalues of W passing 1, tracked node by node from the tip
-to the base. U^T V stays symmetric along s (the plane is Lagrangian): ``lagrangian_error``
-measures it, a check of the whole construction.
+The fields come from the shooting problem itself, on the device (kernels/jacobi.py): the
+solution and the 6 finite-difference probes of its base wrench are integrated side by side, so
+their differences are the Jacobi fields that vanish at the clamp (U(0) = 0), with U the change of
+position and rotation and V the conjugate momenta: the change of the total internal force
+n + sum tau t and of the total moment less half the rotation crossed with it (the term of the
+rotations' second order). U^T V stays symmetric along s (the plane is Lagrangian):
+``lagrangian_error`` measures it, a check of the whole construction. With P = V U^-1 and its
+eigenvalues p = cot(phi), a phase phi passes a multiple of pi at each conjugate point, forwards
+only; the tip, free, adds the negative eigenvalues of P(L) (the Morse index theorem for a
+clamped-free interval). So, with the phases tracked node by node from the clamp as continuous
+lifts, index = sum_k floor((phi_k(L) - NEUTRAL) / pi + 1/2). A phase within NEUTRAL of an
+odd multiple of pi/2 at the tip is a zero mode (the elastica of a round rod turned about the
+load), neutral rather than unstable. The tests hold an independent host version of the test
+(tests/stability_reference.py), built the other way round from the tip's plane, and compare.
 
 Displacement control adds the stiffness of the wires: the second variation gains sum kappa
 (d ell)^2. With J the shooting Jacobian, the index is that under tension control at the same
@@ -34,189 +36,95 @@ tendon loads (follower forces).
 
 from __future__ import annotations
 
-from dataclasses import replace
-
 import numpy as np
+import warp as wp
 
-from tdcr_warp.core.build import Tables, _cross, put_model
+from tdcr_warp.core.build import Tables
+from tdcr_warp.core.launch import Mirror, Replay
 from tdcr_warp.kernels import layout
-from tdcr_warp.model.robot import Robot
-from tdcr_warp.physics.sensitivity import PROBE_REL, vee_rate
+from tdcr_warp.kernels.structs import tendon_vectors
+from tdcr_warp.physics.sensitivity import AXIAL_STRAIN, PROBE_REL
 
-__all__ = ["jacobi_index", "node_routing", "totals"]
+__all__ = ["NEUTRAL", "Verdict", "wires_stabilised"]
 
 WIRE_TOL = 1e-6  # relative size of a positive eigenvalue of the wires' Schur complement
-CROSS_TOL = 1e-7  # rad: an eigenphase within this of 1 at the clamp is neutral (a zero mode), not a crossing
+NEUTRAL = 1e-6  # rad: a tip phase this close to an odd multiple of pi/2 is a zero mode, not unstable
+REFINE_MARGIN = 1e-3  # rad: a coarse verdict this close to a change of the count is redone on the full grid
+COARSE_ARG = 8  # the position of ``coarse`` among the verdict kernel's arguments
 
 
-def node_routing(robot: Robot, grid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """r(s) and r'(s) (1|B, N+1, K, 3) of every tendon at the nodes ``grid`` (1|B, N+1)."""
-    rs, drs = [], []
-    for j in range(grid.shape[1]):
-        s = np.broadcast_to(grid[:, j:j + 1], (grid.shape[0], max(robot.n_tendons, 1)))[:, :robot.n_tendons]
-        r, dr, _ = robot.tendon_routing(s)
-        rs.append(r)
-        drs.append(dr)
-    return np.stack(rs, axis=1), np.stack(drs, axis=1)
+class Verdict:
+    """The stability verdict of the rods of one Shooting ``sh`` at its solution, on the device
+    (kernels/jacobi.py): its arrays allocated once and its launch recorded once and replayed
+    (tdcr_warp.core.launch)."""
+
+    def __init__(self, sh, tables: Tables, precision: str, coarse: bool):
+        k, dev, b = sh.kern, sh.device, sh.b
+        wdt = sh.dev.wdtype
+        self.tables = tables
+        self.mask = wp.zeros(b, dtype=int, device=dev)
+        nt = k.nu + 1
+        fd = self.fields = k.Fields()  # the trajectories' states and work matrices, per rod
+        fd.p, fd.R, fd.n, fd.m = (wp.empty((b, nt), dtype=t, device=dev) for t in (k.vec3, k.mat33, k.vec3, k.vec3))
+        fd.E = wp.empty((b, nt), dtype=tendon_vectors(wdt, k.K)[1], device=dev)
+        fd.wk = wp.empty((b, 4, 6, 6), dtype=wdt, device=dev)  # U, V and two work matrices
+        self.index = wp.zeros(b, dtype=int, device=dev)
+        self.margin = wp.zeros(b, dtype=wdt, device=dev)
+        self.lag = wp.zeros(b, dtype=wdt, device=dev)
+        self.jac = wp.zeros(b, dtype=k.matu, device=dev)
+        self.host = {name: Mirror(getattr(self, name), np.float64) for name in ("mask", "index", "margin", "lag", "jac")}
+        self.coarse = coarse
+        self.args = [sh.model, sh.control, sh.step, sh.newton.x, self.mask, wdt(PROBE_REL[precision]),
+                     wdt(AXIAL_STRAIN[precision]), wdt(NEUTRAL), int(coarse), fd, self.jac, self.index,
+                     self.margin, self.lag]
+        self.launch = Replay(k.verdict, b, dev)
+
+    def _run(self, mask: np.ndarray, coarse: bool) -> None:
+        self.host["mask"].put(mask.astype(np.int32))
+        self.args[COARSE_ARG] = int(coarse)
+        self.launch(*self.args)
+
+    def __call__(self, converged: np.ndarray, taut: np.ndarray | None) -> dict[str, np.ndarray]:
+        """Per rod: ``stability_index`` (0 stable, -1 not converged), ``lagrangian_error``,
+        ``stability_margin`` (the smallest distance [rad] of a tip phase from the boundary of
+        the count) and the shooting Jacobian ``unknowns_jacobian`` at x* (forward differences; over
+        double steps with ``coarse``). taut (b, K) or None: the taut displaced tendons (the wires'
+        correction, ``wires_stabilised``)."""
+        self._run(converged, self.coarse)
+        if self.coarse:  # refined on the full grid where the coarse count is within its error of a change
+            near = converged & (self.host["margin"].get(np.float64) < REFINE_MARGIN)
+            if near.any():
+                self._run(near, False)
+        index = np.where(converged, self.host["index"].get(np.int64), -1)
+        lag = np.where(converged, self.host["lag"].get(np.float64), np.nan)
+        margin = np.where(converged, self.host["margin"].get(np.float64), np.nan)
+        jac = self.host["jac"].get(np.float64)
+        if taut is not None and taut.any():
+            wires = wires_stabilised(jac, self.tables, taut, converged)
+            index = np.where(converged & (wires >= 0), index - wires, -1)
+        return {"stability_index": index, "lagrangian_error": lag, "stability_margin": margin,
+                "unknowns_jacobian": jac}
 
 
-def totals(st: dict, rod: np.ndarray, tension: np.ndarray, route, present: np.ndarray, kirchhoff: bool):
-    """The total internal force n + sum_k tau_k t_k and moment m + sum_k tau_k (R r_k) x t_k at
-    every node (b, N+1, 3) of a shape ``st`` (P, Rn, n, m), with the tendons that run there
-    (present (1|b, N+1, K)); t_k the unit tangent of tendon k's path, from the strains."""
-    R, n, m = st["Rn"], st["n"], st["m"]
-    if route is None:
-        return n, m
-    r, dr = route
-    Rt = np.swapaxes(R, -1, -2)
-    rtn = (Rt @ n[..., None])[..., 0]
-    rtm = (Rt @ m[..., None])[..., 0]
-    kse, kbt = rod[:, None, layout.KSE:layout.KSE + 3], rod[:, None, layout.KBT:layout.KBT + 3]
-    ustar = rod[:, None, layout.USTAR:layout.USTAR + 3]
-    e3 = np.array([0.0, 0.0, 1.0])
-    v = np.broadcast_to(e3, rtn.shape) if kirchhoff else rtn / kse + e3
-    u = rtm / kbt + ustar
-    pb = _cross(u[:, :, None], r) + dr + v[:, :, None]
-    w = (tension[:, None, :] * present)[..., None] / np.linalg.norm(pb, axis=-1, keepdims=True)
-    # in the body frame: sum tau pb / |pb| and sum tau r x pb / |pb|, then to the world
-    fb = (w * pb).sum(axis=2)
-    lb = (w * _cross(np.broadcast_to(r, pb.shape), pb)).sum(axis=2)
-    return n + (R @ fb[..., None])[..., 0], m + (R @ lb[..., None])[..., 0]
-
-
-def _field(st0: dict, st1: dict, tot0, tot1, h) -> np.ndarray:
-    """(b, N+1, 12) a Jacobi field from two shapes h apart: [zeta, eta, P_zeta, P_eta]."""
-    h = h[:, None, None]
-    eta = vee_rate(st0["Rn"], st1["Rn"], h[..., None])
-    dn = (tot1[0] - tot0[0]) / h
-    dm = (tot1[1] - tot0[1]) / h
-    return np.concatenate([(st1["P"] - st0["P"]) / h, eta, dn, dm - 0.5 * _cross(eta, tot0[1])], axis=-1)
-
-
-def _rotated_loads(tables: Tables, axis: int, eps: float) -> Tables:
-    """The tables with gravity and the point forces rotated by -eps about world axis ``axis``."""
-    e = np.zeros(3)
-    e[axis] = 1.0
-    rod = np.array(tables.rod)
-    fe = rod[:, layout.FE:layout.FE + 3]
-    rod[:, layout.FE:layout.FE + 3] = fe - eps * _cross(np.broadcast_to(e, fe.shape), fe)
-    pf = np.array(tables.pforce)
-    if pf.size:
-        pf = pf - eps * _cross(np.broadcast_to(e, pf.shape), pf)
-    return replace(tables, rod=rod, pforce=pf)
-
-
-def jacobi_index(sh, lin: dict, tables: Tables, route, lo: int, hi: int, tension: np.ndarray,
-                 precision: str, kirchhoff: bool, coupled: bool, taut: np.ndarray | None):
-    """Per rod of the chunk: the index of the second variation (0: stable), the Lagrangian
-    check max |U^T V - V^T U| / max(|U|, |V|)^2 over the nodes (Frobenius norms of the
-    symplectically scaled fields), and the eigenphases' smallest
-    distance from a crossing at the clamp (a margin [rad]). ``lin``: linearise(..., shapes=True);
-    route: ``node_routing`` of the whole batch; tension (b, K) the tendons' tensions [N]; taut
-    (b, K) or None: the taut displaced tendons."""
-    base, fields, hx = lin["base"], lin["fields"], lin["field_steps"]
-    b, N1 = base["P"].shape[:2]
-    rod = np.broadcast_to(tables.rows("rod", lo, hi), (b, layout.ROD_WIDTH))
-    K = tension.shape[1]
-    route = tuple(a[lo:hi] if a.shape[0] > 1 else a for a in route) if K and coupled else None
-    term = np.broadcast_to(tables.rows("term_node", lo, hi), (b, K))
-    present = (np.arange(N1)[None, :, None] <= term[:, None, :]).astype(np.float64)
-
-    def tot(st):
-        return totals(st, rod, tension, route, present, kirchhoff)
-
-    t0 = tot(base)
-    cols = []
-    for i in range(3):  # translations
-        f = np.zeros((b, N1, 12))
-        f[:, :, i] = 1.0
-        cols.append(f)
-    loads = bool(np.any(tables.rod[:, layout.FE:layout.FE + 3] != 0) or np.any(tables.pforce != 0))
-    x = sh.newton.x.numpy().astype(np.float64)
-    eps = PROBE_REL[precision]
-    for i in range(3):  # rotations of the rod, its tendons and its base wrench; dead loads rotated back
-        e = np.zeros(3)
-        e[i] = 1.0
-        eb = np.broadcast_to(e, base["P"].shape)
-        f = np.concatenate([_cross(eb, base["P"]), eb, _cross(eb, t0[0]),
-                            _cross(eb, t0[1]) - 0.5 * _cross(eb, t0[1])], axis=-1)
-        if loads:
-            pr = sh.probe(x, put_model(sh.kern, sh.dev, _rotated_loads(tables, i, eps), lo, hi), shapes=True)
-            f = f + _field(base, pr, t0, tot(pr), np.full(b, eps))
-            lin["integrations"] = lin["integrations"] + 1
-        cols.append(f)
-    for j in range(6):  # the base wrench (a probe above x*, and below it for central differences)
-        up, down = fields[j]
-        f = _field(base, up, t0, tot(up), hx[:, j])
-        if down is not None:
-            f = 0.5 * (f + _field(base, down, t0, tot(down), -hx[:, j]))
-        cols.append(f)
-    Y = np.stack(cols, axis=-1)  # (b, N+1, 12, 12)
-    L = rod[:, layout.LENGTH]
-    a = np.sqrt(rod[:, layout.KBT] / L)  # symplectic scaling: [zeta a / L, eta a, P_zeta L / a, P_eta / a]
-    sc = np.concatenate([np.repeat((a / L)[:, None], 3, 1), np.repeat(a[:, None], 3, 1),
-                         np.repeat((L / a)[:, None], 3, 1), np.repeat((1 / a)[:, None], 3, 1)], axis=1)
-    Y = Y * sc[:, None, :, None]
-    Y = Y / np.linalg.norm(Y[:, :1], axis=2, keepdims=True).clip(1e-300)  # columns of unit size at the base
-    _, _, vh = np.linalg.svd(Y[:, -1, 6:, :])  # the tip: momenta zero
-    c = np.swapaxes(vh[:, 6:, :], 1, 2)  # (b, 12, 6) its null space
-    Z = np.einsum("bsij,bjk->bsik", Y, c)
-    U, V = Z[:, :, :6], Z[:, :, 6:]
-    UV = np.einsum("bsji,bsjk->bsik", U, V)
-    size = np.maximum(np.linalg.norm(U, axis=(2, 3)), np.linalg.norm(V, axis=(2, 3))).max(axis=1) ** 2
-    lag = np.linalg.norm(UV - np.swapaxes(UV, 2, 3), axis=(2, 3)).max(axis=1) / size.clip(1e-300)
-    W = np.linalg.solve(np.swapaxes(V - 1j * U, 2, 3), np.swapaxes(V + 1j * U, 2, 3))
-    lam = np.linalg.eigvals(np.swapaxes(W, 2, 3))  # (b, N+1, 6)
-    index, margin = _count_crossings(lam[:, ::-1])
-    if taut is not None and taut.any():
-        index = index - _wire_stabilised(lin["unknowns_jacobian"], tables, taut)
-    return index, lag, margin
-
-
-def _count_crossings(lam: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Eigenvalues (b, S, 6) of W from the tip (s = L) to the clamp: the number of times one
-    passes 1 (tracked by nearest matching from node to node, phases unwrapped), and the smallest
-    distance of a phase from 1 at the clamp [rad]."""
-    b, S, n = lam.shape
-    cur = lam[:, 0]
-    psi = np.angle(cur)
-    count = np.zeros(b, dtype=np.int64)
-    rows = np.arange(b)
-    for k in range(1, S):
-        new = lam[:, k]
-        d = np.abs(np.angle(new[:, None, :] / cur[:, :, None]))  # (b, old, new)
-        order = np.empty((b, n), dtype=np.int64)
-        for _ in range(n):  # greedy nearest pairs
-            flat = d.reshape(b, -1).argmin(axis=1)
-            i, j = flat // n, flat % n
-            order[rows, i] = j
-            d[rows, i, :] = np.inf
-            d[rows, :, j] = np.inf
-        nxt = np.take_along_axis(new, order, axis=1)
-        step = np.angle(nxt / cur)
-        before = np.floor((psi + CROSS_TOL) / (2 * np.pi))
-        psi = psi + step
-        count += np.abs(np.floor((psi + CROSS_TOL) / (2 * np.pi)) - before).astype(np.int64).sum(axis=1)
-        cur = nxt
-    margin = np.abs(np.angle(lam[:, -1])).min(axis=1)
-    return count, margin
-
-
-def _wire_stabilised(J: np.ndarray, tables: Tables, taut: np.ndarray) -> np.ndarray:
+def wires_stabilised(J: np.ndarray, tables: Tables, taut: np.ndarray, rods: np.ndarray) -> np.ndarray:
     """Per rod, the positive eigenvalues of the Schur complement of the taut displaced tendons'
     rows and columns in the scaled shooting Jacobian J (b, nu, nu): the unstable directions the
     wires' stiffness removes (eigenvalues above WIRE_TOL times the straight rod's slope, the
-    scale of the complement: an indeterminate tension, inextensible rod and wire, has none)."""
+    scale of the complement: an indeterminate tension, inextensible rod and wire, has none). Rods
+    outside ``rods`` (bool, b) are skipped (0); a rod whose base-wrench block of J is singular (a
+    bifurcation point) gets -1: its complement, and so its verdict, is undefined."""
     disp = np.flatnonzero(tables.tmode[0] >= 0)
     j_of = 6 + tables.tmode[0, disp]
     out = np.zeros(J.shape[0], dtype=np.int64)
     slope = np.broadcast_to(tables.tendon[..., layout.T_SLACK_SLOPE], (J.shape[0], tables.tendon.shape[1]))[:, disp]
-    for i in range(J.shape[0]):
+    for i in np.flatnonzero(rods & taut[:, disp].any(axis=1)):
         sel = j_of[taut[i, disp]]
-        if not len(sel):
-            continue
         A, Bm = J[i, :6, :6], J[i, :6][:, sel]
         C, D = J[i, sel][:, :6], J[i][np.ix_(sel, sel)]
-        S = D - C @ np.linalg.solve(A, Bm)
+        try:
+            S = D - C @ np.linalg.solve(A, Bm)
+        except np.linalg.LinAlgError:
+            out[i] = -1
+            continue
         out[i] = int((np.linalg.eigvalsh(0.5 * (S + S.T)) > WIRE_TOL * slope[i, sel - 6].min()).sum())
     return out

@@ -57,10 +57,12 @@ class StaticSolution:
     d command[l] (the identity for tension control; zero rows for slack tendons); slack_jacobian
     (B, K, K) d (slack length [m] of slack tendon k) / d command[l] (zero rows for taut tendons);
     parameter_jacobian (B, 6, P) d pose / d parameter (units of each parameter,
-    ``parameter_names``). Stability (``stability``): stability_index
-    (B,) the number of unstable directions (0: stable; -1: not assessed: not converged,
-    friction, or point-model tendons); lagrangian_error (B,) the check of the test (small:
-    trustworthy); with "stable" also branch (B,) int8 (0: as solved, 1: the solve landed on an
+    ``parameter_names``). Stability (on by default; None with ``stability="off"``): stability_index
+    (B,) the number of unstable directions (0: stable; -1: not assessed: not converged, or for
+    the whole batch ``stability_note``: friction, point-model tendons); lagrangian_error (B,)
+    the check of the test (small: trustworthy); stability_margin (B,) [rad] how far the rod is
+    from a change of the count (small: near a buckling load; see ``stability_reasons``); with
+    "stable" also branch (B,) int8 (0: as solved, 1: the solve landed on an
     unstable equilibrium and a restart found this stable one, -1: unstable, no stable one
     found) and multiple_stable (B,) bool (restarts found distinct stable equilibria).
 
@@ -111,6 +113,8 @@ class StaticSolution:
     parameter_names: tuple = ()
     stability_index: np.ndarray | None = None
     lagrangian_error: np.ndarray | None = None
+    stability_margin: np.ndarray | None = None
+    stability_note: str = ""
     branch: np.ndarray | None = None
     multiple_stable: np.ndarray | None = None
 
@@ -119,6 +123,21 @@ class StaticSolution:
         """(B,) bool: converged to an equilibrium the Jacobi test found stable (None without
         ``stability``; False also where it was not assessed, stability_index -1)."""
         return None if self.stability_index is None else self.converged & (self.stability_index == 0)
+
+    @property
+    def success(self) -> np.ndarray:
+        """(B,) bool: converged, and not found unstable (an unstable equilibrium is never a success;
+        a rod the test could not assess counts as converged, see ``stability_reasons``)."""
+        return self.converged & ((self.status & layout.UNSTABLE) == 0)
+
+    def stability_reasons(self) -> list[str] | None:
+        """One string per rod: "stable", "unstable: k directions", or why it was not assessed
+        (None with ``stability="off"``)."""
+        if self.stability_index is None:
+            return None
+        return ["stable" if i == 0 else f"unstable: {i} directions" if i > 0 else
+                "not assessed: not converged" if not ok else f"not assessed: {self.stability_note}"
+                for i, ok in zip(self.stability_index.tolist(), self.converged.tolist())]
 
     @property
     def tip_position(self) -> np.ndarray:
@@ -204,7 +223,10 @@ def _constant_curvature(robot: Robot, tau: np.ndarray, opts: StaticOptions) -> S
                           converged=np.ones(B, bool), status=status, iterations=zeros.astype(np.int32),
                           integrations=zeros.astype(np.int32), residual=zeros, orthogonality_error=zeros,
                           jacobian=np.zeros((B, 6, 6)), options=opts,
-                          tip_error_estimate=zeros if opts.error_estimate else None)
+                          tip_error_estimate=zeros if opts.error_estimate else None,
+                          **({} if opts.stability == "off" else {
+                              "stability_index": np.full(B, -1, dtype=np.int64), "lagrangian_error": zeros + np.nan,
+                              "stability_margin": zeros + np.nan, "stability_note": "the constant-curvature model"}))
 
 
 class StaticProblem:
@@ -259,12 +281,11 @@ class StaticProblem:
     def start(self, tau: np.ndarray, avail: np.ndarray | None) -> np.ndarray:
         """Scaled straight-rod start (B, nu): the displaced tendons at the tensions of the linear
         straight-rod model (tdcr_warp.physics.slack.linear_tensions), the base wrench of all tensions."""
-        t, B = self.tables, self.B
-        scales = t.scale_rows(B)
+        t = self.tables
         if avail is None:
-            return t.straight.guess(tau) / scales
+            return t.straight.guess(tau) / t.scales
         guess, z = linear_tensions(self.robot, t, self.tendon_compliance, tau, avail)
-        return np.concatenate([t.straight.guess(guess) / scales[:, :6], z], axis=1)
+        return np.concatenate([t.straight.guess(guess) / t.scales[:, :6], z], axis=1)
 
     def solve(self, tau: np.ndarray, initial: StaticSolution | None, displacements: np.ndarray | None = None,
               slip: np.ndarray | None = None, history: StaticSolution | None = None, *,
@@ -281,10 +302,12 @@ class StaticProblem:
                   "broyden": opts.jacobian == "broyden"}
         job = _Job(tau=tau, avail=avail, slip=slip, profile=profile, x0=x0, J0=J0,
                    warm=(initial or history) is not None, newton=newton, ptables=ptables,
-                   linear=sensitivities or stability != "off" or bool(parameters), stability=stability)
+                   linear=sensitivities or bool(parameters), stability=stability)
+        if job.linear or stability != "off":
+            self.solvers[0].probe.load()  # once, before the chunks' threads
         parts = parallel(lambda i: self._solve_chunk(i, job), list(range(len(self.chunks))))
         out = parts[0] if len(parts) == 1 else {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
-        return _solution(tables, opts, out, job, tuple(parameters))
+        return _solution(tables, opts, out, job, tuple(parameters), self.assessor.unassessed)
 
     def _first_guess(self, tau: np.ndarray, avail: np.ndarray | None, initial: StaticSolution | None,
                      history: StaticSolution | None) -> tuple[np.ndarray, np.ndarray | None]:
@@ -328,11 +351,11 @@ class StaticProblem:
         if job.profile is not None:
             self._stick_slip(sh, job.slip[lo:hi], job.profile[lo:hi], x0, taut, newton)
         res = sh.results()
-        if job.linear:
-            res |= self.assessor.linearised(sh, lo, hi, job.tau[lo:hi], taut, res, job.ptables, job.stability)
+        if job.linear or job.stability != "off":
+            res |= self.assessor.assess(sh, lo, hi, job.tau[lo:hi], taut, res, job.ptables, job.linear, job.stability)
             if job.stability == "stable":
-                res = self.assessor.stable_branch(sh, lo, hi, job.tau[lo:hi], taut, res, job.ptables, newton,
-                                                  self.disp, self.j_of)
+                res = self.assessor.stable_branch(sh, lo, hi, job.tau[lo:hi], taut, res, job.ptables, job.linear,
+                                                  newton, self.disp, self.j_of)
         return res
 
     def _stick_slip(self, sh: Shooting, slip: np.ndarray, profile: np.ndarray, x0: np.ndarray, taut: np.ndarray,
@@ -355,7 +378,8 @@ class _Job:
     """One solve of a StaticProblem's batch, as every chunk takes it: tensions tau (B, K) [N], the
     displaced tendons' lengths avail (B, K) [m] or None, slip (B, K) and the stick-slip profile or
     None (friction), the start x0 (B, nu) and Jacobian J0 or None, whether the start is warm, the
-    Newton settings, the parameters' tables and what to add (``linear``: sensitivities; stability)."""
+    Newton settings, the parameters' tables and what to add (``linear``: sensitivities; the
+    stability verdict unless ``stability`` is "off")."""
 
     tau: np.ndarray
     avail: np.ndarray | None
@@ -393,7 +417,8 @@ def _slip_memory(tables: Tables, n_slots: int, tau: np.ndarray, avail: np.ndarra
     return np.where(moved >= 0, 1.0, -1.0), history.tension_slots
 
 
-def _solution(tables: Tables, opts: StaticOptions, out: dict, job: _Job, parameters: tuple) -> StaticSolution:
+def _solution(tables: Tables, opts: StaticOptions, out: dict, job: _Job, parameters: tuple,
+              unassessed: str) -> StaticSolution:
     """The StaticSolution of a batch from its chunks' joined results ``out``: the base wrench and
     tendon fields unscaled, NaN sensitivities for rods that did not converge, UNSTABLE flagged."""
     B = len(out["converged"])
@@ -406,10 +431,10 @@ def _solution(tables: Tables, opts: StaticOptions, out: dict, job: _Job, paramet
         for k in ("tip_jacobian", "tip_compliance", "tension_jacobian", "slack_jacobian", "parameter_jacobian"):
             out[k][bad] = np.nan
         out["parameter_names"] = parameters
-        if job.stability != "off":
-            st = out["stability_index"]
-            out["status"] = np.where(st > 0, out["status"] | layout.UNSTABLE, out["status"]).astype(
-                out["status"].dtype)
+    if job.stability != "off":
+        st = out["stability_index"]
+        out["status"] = np.where(st > 0, out["status"] | layout.UNSTABLE, out["status"]).astype(out["status"].dtype)
+        out["stability_note"] = unassessed
     return StaticSolution(s=s, options=opts, unknowns=x, **out, **tendon)
 
 
@@ -444,6 +469,34 @@ CACHE_SIZE = 8
 CACHE_NODE_RODS = 1 << 17  # cache problems up to B (N + 1) of this (~20 MB of device arrays each)
 _cache: OrderedDict = OrderedDict()
 _cache_lock = threading.Lock()
+_DEFAULT_OPTIONS = StaticOptions()
+_options_cache: dict = {}
+
+
+def _options(options: StaticOptions | None, overrides: dict) -> StaticOptions:
+    """``options`` (None: the defaults) with ``overrides``, validated once per distinct pair: the
+    options are frozen, so the first call's serve every later one (the keys hold the overrides with
+    their types: nodes=20.0 is validated, and rejected, on its own)."""
+    base = options or _DEFAULT_OPTIONS
+    if not overrides:
+        return base
+    try:
+        key = (id(base), tuple((k, type(v), v) for k, v in overrides.items()))
+        hit = _options_cache.get(key)
+    except TypeError:  # an unhashable value: checked (and refused or converted) on every call
+        return base.override(**overrides)
+    if hit is None or hit[0] is not base:
+        if len(_options_cache) >= 256:
+            _options_cache.clear()
+        hit = _options_cache[key] = (base, base.override(**overrides))  # holds base: its id stays its own
+    return hit[1]
+
+
+@functools.lru_cache(maxsize=64)
+def _shape_options(opts: StaticOptions) -> StaticOptions:
+    """The options a cached problem is made for: those that select kernels and arrays (not what a
+    solve adds: the error estimate, sensitivities, stability)."""
+    return replace(opts, error_estimate=False, sensitivities=False, stability="off")
 
 
 def _problem(robot: Robot, B: int, opts: StaticOptions, device) -> tuple[StaticProblem, bool]:
@@ -451,7 +504,7 @@ def _problem(robot: Robot, B: int, opts: StaticOptions, device) -> tuple[StaticP
     Returns (problem, cached)."""
     if B * (opts.nodes + 1) > CACHE_NODE_RODS:
         return StaticProblem(robot, B, opts, device), False
-    key = (id(robot), B, replace(opts, error_estimate=False, sensitivities=False, stability="off"), device.alias)
+    key = (id(robot), B, _shape_options(opts), device.alias)
     with _cache_lock:
         hit = _cache.get(key)
         if hit is not None and hit[0]() is robot and hit[1].lock.acquire(blocking=False):
@@ -471,7 +524,7 @@ def reference_lengths(robot: Robot, *, options: StaticOptions | None = None, dev
     """(B, K) the unstretched length of every tendon in the reference state of displacement
     control: each tendon in tension control at its pretension, frictionless, under the robot's
     external loads [m] (a displacement q leaves the tendon this minus q)."""
-    opts = (options or StaticOptions()).override(**overrides)
+    opts = _options(options, overrides)
     problem, locked = _problem(robot, robot.batch_size, opts, wp.get_device(device))
     try:
         return problem.reference_lengths().copy()
@@ -500,7 +553,7 @@ def solve_static(robot: Robot, tensions=None, *, displacements=None, slip=None, 
     "tendons[0].offset[1]", "tip_force[0]" (tdcr_warp.physics.sensitivity; under displacement control
     the motor's given length is held, not the displacement).
     """
-    opts = (options or StaticOptions()).override(**overrides)
+    opts = _options(options, overrides)
     slip = None if slip is None else real_array(slip, "slip", copy=False)
     tau, q = check_command(robot, tensions, displacements,
                            None if slip is None or np.ndim(slip) != 2 else max(robot.batch_size, np.shape(slip)[0]))
@@ -510,9 +563,9 @@ def solve_static(robot: Robot, tensions=None, *, displacements=None, slip=None, 
         if robot.displaced or robot.has_friction:
             raise InputError("solver model 'constant_curvature' has no displacement control or friction: "
                              "use model 'coupled' or 'point'")
-        if opts.sensitivities or opts.stability != "off" or parameters:
-            raise InputError("solver model 'constant_curvature' has no sensitivities or stability test: use model "
-                             "'coupled' or 'point'")
+        if opts.sensitivities or opts.stability == "stable" or parameters:
+            raise InputError("solver model 'constant_curvature' has no sensitivities or stable-branch search: use "
+                             "model 'coupled' or 'point'")
         return _constant_curvature(robot, tau, opts)
     dev = wp.get_device(device)
     require_memory(B * (opts.nodes + 1) * 400.0, f"nodes = {opts.nodes} for {B} rods: the shapes")

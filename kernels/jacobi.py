@@ -1,0 +1,472 @@
+"""The elastic stability verdict of solved static rods, on the device: one thread per rod
+integrates its solution and the 6 finite-difference probes of the base wrench side by side and
+counts, node by node, the conjugate points of the clamp (tdcr_warp/physics/stability.py has the
+theory).
+
+The probes span the Jacobi fields that vanish at the clamp (U(0) = 0, the Dirichlet plane):
+U the change of position and rotation, V the change of the total internal force and moment
+(rod and tendons), symplectically scaled. The eigenvalues p of the symmetric P = V U^-1 give
+phases phi = arccot p in [0, pi); a phase passes a multiple of pi where U is singular (a
+conjugate point) and only forwards (the Legendre condition). Tracked from the base (all
+phases 0) to the tip as continuous lifts, the index of the second variation with a free tip is
+
+    index = sum_k floor((phi_k(L) - NEUTRAL) / pi + 1/2)
+
+(the conjugate points inside, and at the tip the negative eigenvalues of P(L)): a phase within
+NEUTRAL of an odd multiple of pi / 2 at the tip is a neutral mode (a symmetry), not a negative
+one. P comes from the chart (U cos b + V sin b, V cos b - U sin b) of the best-conditioned of 4
+angles b, so a singular U (a crossing, the inextensible rod's axial direction) needs no care.
+
+  make_verdict_kernel   the kernel of one static variant (module "evaluate")
+  symmetric_eigenvalues, inverse6   its small dense linear algebra (6 x 6)
+"""
+
+import functools
+import math
+from types import SimpleNamespace
+
+import warp as wp
+
+from .dense6 import make_dense6
+from .drivers import module_names
+from .integration import N_BASE, make_interval, make_residual
+from .layout import FORCE_SCALE, KBT, KSE, LENGTH, MOMENT_SCALE
+from .rod import make_rod_funcs
+from .strains import make_strains
+from .structs import make_rows, make_structs, tendon_vectors
+from .tendons import make_routes
+from .variants import STAGES, Features
+
+CHARTS = 4  # angles b = j pi / CHARTS tried for the best-conditioned chart
+CHART_MIN = 0.05  # a chart is kept from node to node while its Hadamard ratio stays above this
+U_SLOT, V_SLOT, A_SLOT, X_SLOT = 0, 1, 2, 3  # the matrices of a thread's work array (B, 4, 6, 6)
+
+
+@functools.cache
+def make_fields(dtype, model: str, rod: str, features: Features):
+    """The totals and the Jacobi-field columns of one static variant."""
+    vec3 = wp.types.vector(3, dtype)
+    mat33 = wp.types.matrix((3, 3), dtype)
+    dn = make_dense6(dtype)
+    vec6 = dn.vec6
+    K = features.tendons
+    kvec = tendon_vectors(dtype, K)[0]
+    st = make_structs(dtype, False)
+    Model, Control, Step = st.Model, st.Control, st.Step
+    rows = make_rows(dtype, False)
+    law = make_strains(dtype, False, rod == "kirchhoff")
+    route = make_routes(dtype, False, features.helix, features.spline)
+    coupled = model == "coupled"
+    half = dtype(0.5)
+
+    @wp.func
+    def totals(md: Model, ct: Control, sp: Step, b: int, s: dtype, R: mat33, n: vec3, m: vec3, t0: kvec,
+               node: int):
+        """The total internal force n + sum_k tau_k t_k and moment m + sum_k tau_k (R r_k) x t_k
+        at ``node`` (just proximal of its jumps), over the tendons that run there (frictionless:
+        each at its motor's tension, t0 with tendon states, else the command)."""
+        Nt = n
+        Mt = m
+        if wp.static(coupled):
+            v, u = law.strains(md, sp, b, R, n, m, 0)
+            for k in range(md.n_tendons):
+                if rows.term_node(md, b, k) >= node:
+                    tau = ct.tau[b, k]
+                    if wp.static(K > 0):
+                        tau = t0[k]
+                    r, dr, _ddr = route.tendon_route(md, b, k, s)
+                    t = route.tendon_tangent(R, v, u, r, dr)
+                    Nt = Nt + tau * t
+                    Mt = Mt + tau * wp.cross(R * r, t)
+        return Nt, Mt
+
+    @wp.func
+    def put_column(wk: dn.Work, b: int, j: int, dp: vec3, eta: vec3, dN: vec3, dM: vec3):
+        """Column j of U (slot U_SLOT) and V (slot V_SLOT)."""
+        for i in range(3):
+            wk[b, U_SLOT, i, j] = dp[i]
+            wk[b, U_SLOT, 3 + i, j] = eta[i]
+            wk[b, V_SLOT, i, j] = dN[i]
+            wk[b, V_SLOT, 3 + i, j] = dM[i]
+
+    @wp.func
+    def column(p0: vec3, R0: mat33, N0: vec3, M0: vec3, p: vec3, R: mat33, Nt: vec3, Mt: vec3, h: dtype,
+               sc: vec6):
+        """A Jacobi field from a probe h away, scaled by sc = [a / L, a, L / a, 1 / a]."""
+        W = (R - R0) * wp.transpose(R0)
+        eta = half * vec3(W[2, 1] - W[1, 2], W[0, 2] - W[2, 0], W[1, 0] - W[0, 1]) / h
+        dM = (Mt - M0) / h - half * wp.cross(eta, M0)
+        return (p - p0) / h * sc[0], eta * sc[1], (Nt - N0) / h * sc[2], dM * sc[3]
+
+    return SimpleNamespace(totals=totals, put_column=put_column, column=column)
+
+
+@functools.cache
+def make_charts(dtype):
+    """The phases of a Lagrangian plane (U, V) at one node, from a well-conditioned chart."""
+    dn = make_dense6(dtype)
+    vec6 = dn.vec6
+    pi = dtype(math.pi)
+
+    @wp.func
+    def conditioning(wk: dn.Work, b: int, beta: dtype):
+        """A_SLOT = U cos beta + V sin beta (then overwritten by its LU factors): its Hadamard
+        ratio |det A| / prod |a_j| in [0, 1] (1: orthogonal columns, 0: singular)."""
+        cb = wp.cos(beta)
+        sb = wp.sin(beta)
+        norms = dtype(1.0)
+        for j in range(6):
+            c2 = dtype(0.0)
+            for i in range(6):
+                a = wk[b, U_SLOT, i, j] * cb + wk[b, V_SLOT, i, j] * sb
+                wk[b, A_SLOT, i, j] = a
+                c2 = c2 + a * a
+            norms = norms * wp.sqrt(c2)
+        return dn.abs_det(wk, b, A_SLOT) / wp.max(norms, dtype(1e-300))
+
+    @wp.func
+    def denominator(wk: dn.Work, b: int, beta: dtype):
+        """A_SLOT = U cos beta + V sin beta."""
+        cb = wp.cos(beta)
+        sb = wp.sin(beta)
+        for i in range(6):
+            for j in range(6):
+                wk[b, A_SLOT, i, j] = wk[b, U_SLOT, i, j] * cb + wk[b, V_SLOT, i, j] * sb
+
+    @wp.func
+    def phases(wk: dn.Work, b: int, beta: dtype):
+        """The phases arccot(p) in [0, pi) of the eigenvalues p of P = V U^-1 (slots U_SLOT,
+        V_SLOT) and the chart used: ``beta`` (the last node's) while the denominator
+        U cos b + V sin b stays well conditioned (Hadamard ratio above CHART_MIN), else the
+        best of CHARTS angles."""
+        if conditioning(wk, b, beta) < dtype(CHART_MIN):
+            best = dtype(-1.0)
+            for c in range(CHARTS):
+                bc = dtype(c) * pi / dtype(CHARTS)
+                ratio = conditioning(wk, b, bc)
+                if ratio > best:
+                    best = ratio
+                    beta = bc
+        denominator(wk, b, beta)
+        dn.invert(wk, b, A_SLOT, X_SLOT)
+        cb = wp.cos(beta)
+        sb = wp.sin(beta)
+        for i in range(6):  # P = (V cos b - U sin b) X into A_SLOT
+            for j in range(6):
+                acc = dtype(0.0)
+                for k in range(6):
+                    acc = acc + (wk[b, V_SLOT, i, k] * cb - wk[b, U_SLOT, i, k] * sb) * wk[b, X_SLOT, k, j]
+                wk[b, A_SLOT, i, j] = acc
+        for i in range(6):
+            for j in range(i + 1, 6):
+                sym = dtype(0.5) * (wk[b, A_SLOT, i, j] + wk[b, A_SLOT, j, i])
+                wk[b, A_SLOT, i, j] = sym
+                wk[b, A_SLOT, j, i] = sym
+        ev = dn.symmetric_eigenvalues(wk, b, A_SLOT)
+        phi = vec6()
+        for i in range(6):
+            ph = wp.atan2(dtype(1.0), ev[i]) - beta
+            phi[i] = ph - pi * wp.floor(ph / pi)
+        return phi, beta
+
+    return SimpleNamespace(phases=phases)
+
+
+@functools.cache
+def make_tracking(dtype):
+    """The phases followed from node to node as continuous lifts, the count and the check."""
+    dn = make_dense6(dtype)
+    vec6 = dn.vec6
+    pi = dtype(math.pi)
+    half_pi = dtype(0.5 * math.pi)
+
+    @wp.func
+    def wrap(d: dtype):
+        """d into [-pi/2, pi/2) (phases live modulo pi)."""
+        return d - pi * wp.floor((d + half_pi) / pi)
+
+    @wp.func
+    def track(cur: vec6, lift: vec6, phi: vec6):
+        """The lifts moved by the nearest matching of the new phases ``phi`` to ``cur``."""
+        used_old = int(0)  # noqa: UP018, RUF046 (a dynamic variable for Warp)
+        used_new = int(0)  # noqa: UP018, RUF046
+        nxt = vec6()
+        for _round in range(6):
+            bi = int(0)  # noqa: UP018, RUF046
+            bj = int(0)  # noqa: UP018, RUF046
+            bd = dtype(1e30)
+            for i in range(6):
+                if (used_old >> i) & 1 == 0:
+                    for j in range(6):
+                        if (used_new >> j) & 1 == 0:
+                            d = wp.abs(wrap(phi[j] - cur[i]))
+                            if d < bd:
+                                bd = d
+                                bi = i
+                                bj = j
+            lift[bi] = lift[bi] + wrap(phi[bj] - cur[bi])
+            nxt[bi] = phi[bj]
+            used_old = used_old | (1 << bi)
+            used_new = used_new | (1 << bj)
+        return nxt, lift
+
+    @wp.func
+    def start(phi: vec6):
+        """The lifts at the first node: the phases leave 0 at the clamp."""
+        lift = vec6()
+        for i in range(6):
+            lift[i] = wrap(phi[i])
+        return lift
+
+    @wp.func
+    def verdict(lift: vec6, neutral: dtype):
+        """The index sum floor((lift - neutral) / pi + 1/2) and the margin: the smallest distance
+        of a lift from an odd multiple of pi / 2 [rad]."""
+        index = int(0)  # noqa: UP018, RUF046
+        margin = dtype(1e30)
+        for i in range(6):
+            index = index + int(wp.floor((lift[i] - neutral) / pi + dtype(0.5)))
+            d = lift[i] / pi - dtype(0.5)
+            margin = wp.min(margin, wp.abs(d - wp.round(d)) * pi)
+        return index, margin
+
+    @wp.func
+    def asymmetry(wk: dn.Work, b: int):
+        """|U^T V - V^T U| and max(|U|, |V|)^2 (Frobenius): the plane stays Lagrangian."""
+        a = dtype(0.0)
+        nu = dtype(0.0)
+        nv = dtype(0.0)
+        for i in range(6):
+            for j in range(6):
+                d = dtype(0.0)
+                for k in range(6):
+                    d = d + wk[b, U_SLOT, k, i] * wk[b, V_SLOT, k, j] - wk[b, V_SLOT, k, i] * wk[b, U_SLOT, k, j]
+                a = a + d * d
+                nu = nu + wk[b, U_SLOT, i, j] * wk[b, U_SLOT, i, j]
+                nv = nv + wk[b, V_SLOT, i, j] * wk[b, V_SLOT, i, j]
+        return wp.sqrt(a), wp.max(nu, nv)
+
+    return SimpleNamespace(track=track, start=start, verdict=verdict, asymmetry=asymmetry)
+
+
+@functools.cache
+def make_trajectory_state(dtype, tendons: int, displaced: int):
+    """``Fields``: per rod (B, 1 + nu) the state of the solution and of each probe at the last
+    node, and the work matrices; ``probe_x`` the start of trajectory j; ``keep`` a state."""
+    vec3 = wp.types.vector(3, dtype)
+    mat33 = wp.types.matrix((3, 3), dtype)
+    evec = tendon_vectors(dtype, tendons)[1]
+    vecu = wp.types.vector(N_BASE + displaced, dtype)
+    dn = make_dense6(dtype)
+
+    @wp.struct
+    class Fields:
+        """Per rod (B, 1 + nu) the state of each trajectory at the last node, and the work matrices."""
+
+        p: wp.array2d(dtype=vec3)
+        R: wp.array2d(dtype=mat33)
+        n: wp.array2d(dtype=vec3)
+        m: wp.array2d(dtype=vec3)
+        E: wp.array2d(dtype=evec)
+        wk: dn.Work
+
+    @wp.func
+    def probe_x(x: vecu, h: vecu, j: int):
+        """Trajectory j: the solution (0) or the probe of unknown j - 1."""
+        xj = x
+        if j > 0:
+            xj[j - 1] = xj[j - 1] + h[j - 1]
+        return xj
+
+    @wp.func
+    def keep(fd: Fields, b: int, j: int, p: vec3, R: mat33, n: vec3, m: vec3, E: evec):
+        fd.p[b, j] = p
+        fd.R[b, j] = R
+        fd.n[b, j] = n
+        fd.m[b, j] = m
+        fd.E[b, j] = E
+
+    return SimpleNamespace(Fields=Fields, probe_x=probe_x, keep=keep, vecu=vecu)
+
+
+@functools.cache
+def make_clamp(dtype, integrator: str, model: str, rod: str, features: Features):
+    """``clamp``: every trajectory at s = 0; ``steps``: the probes' steps."""
+    vec3 = wp.types.vector(3, dtype)
+    zero = dtype(0.0)
+    one = dtype(1.0)
+    K = features.tendons
+    evec = tendon_vectors(dtype, K)[1]
+    nu = N_BASE + features.displaced
+    vec6 = make_dense6(dtype).vec6
+    ts = make_trajectory_state(dtype, K, features.displaced)
+    vecu = ts.vecu
+    Fields, probe_x, keep = ts.Fields, ts.probe_x, ts.keep
+    st = make_structs(dtype, False)
+    Model, Control, Step = st.Model, st.Control, st.Step
+    rf = make_rod_funcs(dtype, model, False, rod, features)
+    fl = make_fields(dtype, model, rod, features)
+    stages = STAGES[integrator]  # times the intervals: the first slot of the jumps (kernels/integration.py)
+
+    @wp.func
+    def clamp(md: Model, ct: Control, sp: Step, fd: Fields, b: int, x: vecu, h: vecu, sc: vec6):
+        """Every trajectory at s = 0 (past the jumps there); returns the columns' scales: 1 / |V(0)|."""
+        ir = rf.row(b, md.rod)
+        jumps = (md.grid.shape[1] - 1) * stages
+        colscale = vec6()
+        N0 = vec3()
+        M0 = vec3()
+        for j in range(nu + 1):
+            xj = probe_x(x, h, j)
+            t0 = rf.base_tensions(md, ct, b, xj)
+            R = wp.identity(3, dtype)
+            n = vec3(xj[0], xj[1], xj[2]) * md.rod[ir, FORCE_SCALE]
+            m = vec3(xj[3], xj[4], xj[5]) * md.rod[ir, MOMENT_SCALE]
+            Nt, Mt = fl.totals(md, ct, sp, b, zero, R, n, m, t0, 0)
+            if j == 0:
+                N0 = Nt
+                M0 = Mt
+            elif j <= 6:
+                _dp, _eta, dN, dM = fl.column(vec3(), R, N0, M0, vec3(), R, Nt, Mt, h[j - 1], sc)
+                colscale[j - 1] = one / wp.sqrt(wp.length_sq(dN) + wp.length_sq(dM))
+            n, m, E = rf.node_jumps(md, ct, sp, b, zero, R, n, m, vec3(), vec3(), t0, evec(), 0, jumps, jumps + 1, 0)
+            keep(fd, b, j, vec3(), R, n, m, E)
+        return colscale
+
+    @wp.func
+    def steps(md: Model, b: int, x: vecu, rel: dtype, axial_strain: dtype):
+        """The probe steps: rel max(1, |x|), the axial force at least an axial strain's worth."""
+        h = vecu()
+        for j in range(nu):
+            h[j] = rel * wp.max(one, wp.abs(x[j]))
+        ir = rf.row(b, md.rod)
+        h[2] = wp.max(h[2], axial_strain * md.rod[ir, KSE + 2] / md.rod[ir, FORCE_SCALE])
+        return h
+
+    return SimpleNamespace(clamp=clamp, steps=steps)
+
+
+@functools.cache
+def make_advance(dtype, integrator: str, model: str, rod: str, features: Features):
+    """``advance``: every trajectory over the next interval, U and V at its end."""
+    vec3 = wp.types.vector(3, dtype)
+    K = features.tendons
+    nu = N_BASE + features.displaced
+    vec6 = make_dense6(dtype).vec6
+    ts = make_trajectory_state(dtype, K, features.displaced)
+    vecu = ts.vecu
+    Fields, probe_x, keep = ts.Fields, ts.probe_x, ts.keep
+    st = make_structs(dtype, False)
+    Model, Control, Step = st.Model, st.Control, st.Step
+    rf = make_rod_funcs(dtype, model, False, rod, features)
+    fl = make_fields(dtype, model, rod, features)
+    interval = make_interval(dtype, integrator, model, False, rod, features).interval
+    stages = STAGES[integrator]  # times the intervals: the first slot of the jumps (kernels/integration.py)
+
+    @wp.func
+    def advance(md: Model, ct: Control, sp: Step, fd: Fields, b: int, x: vecu, h: vecu, sc: vec6, colscale: vec6,
+                k: int, k1: int):
+        """Every trajectory from node k to node k1; U and V (scaled) at k1, before its jumps."""
+        ig = rf.row(b, md.grid)
+        s = md.grid[ig, k]
+        s1 = md.grid[ig, k1]
+        js = (md.grid.shape[1] - 1) * stages + 2 * k1
+        p0 = vec3()
+        R0 = wp.identity(3, dtype)
+        N0 = vec3()
+        M0 = vec3()
+        for j in range(nu + 1):
+            t0 = rf.base_tensions(md, ct, b, probe_x(x, h, j))
+            p, R, n, m, _q, _w, E = interval(md, ct, sp, b, s, s1 - s, fd.p[b, j], fd.R[b, j], fd.n[b, j], fd.m[b, j],
+                                               vec3(), vec3(), t0, fd.E[b, j], k, 0)
+            if j <= 6:
+                Nt, Mt = fl.totals(md, ct, sp, b, s1, R, n, m, t0, k1)
+                if j == 0:
+                    p0 = p
+                    R0 = R
+                    N0 = Nt
+                    M0 = Mt
+                else:
+                    dp, eta, dN, dM = fl.column(p0, R0, N0, M0, p, R, Nt, Mt, h[j - 1], sc)
+                    cs = colscale[j - 1]
+                    fl.put_column(fd.wk, b, j - 1, dp * cs, eta * cs, dN * cs, dM * cs)
+            n, m, E = rf.node_jumps(md, ct, sp, b, s1, R, n, m, vec3(), vec3(), t0, E, k1, js, js + 1, 0)
+            keep(fd, b, j, p, R, n, m, E)
+
+    return advance
+
+
+@functools.cache
+def make_verdict_kernel(dtype, integrator: str, model: str, rod: str, features: Features):
+    """``verdict_kernel``: per rod (mask), from its solution x, the stability index, margin and
+    Lagrangian check, and the shooting Jacobian J = dr/dx by forward differences (the probes
+    of the displaced tendons' tensions run beside, for the wires' correction on the host).
+    coarse = 1: the fields are integrated over two intervals wherever nothing acts on the node
+    between them (as the probes of a first Jacobian), half the work and half the nodes."""
+    zero = dtype(0.0)
+    one = dtype(1.0)
+    nu = N_BASE + features.displaced
+    ts = make_trajectory_state(dtype, features.tendons, features.displaced)
+    Fields, vecu, probe_x = ts.Fields, ts.vecu, ts.probe_x
+    matu = wp.types.matrix((nu, nu), dtype)
+    cl = make_clamp(dtype, integrator, model, rod, features)
+    advance = make_advance(dtype, integrator, model, rod, features)
+    resid = make_residual(dtype, False, features.tendons, features.displaced)
+    vec6 = make_dense6(dtype).vec6
+    st = make_structs(dtype, False)
+    Model, Control, Step = st.Model, st.Control, st.Step
+    rf = make_rod_funcs(dtype, model, False, rod, features)
+    ch, tk = make_charts(dtype), make_tracking(dtype)
+    module = module_names(dtype, integrator, model, False, rod, features)["evaluate"]
+
+    @wp.func
+    def shooting_jacobian(md: Model, ct: Control, fd: Fields, b: int, x: vecu, h: vecu):
+        """J = dr/dx at the tip by forward differences of the trajectories."""
+        J = matu()
+        r0 = resid.tip_residual(md, ct, b, x, fd.n[b, 0], fd.m[b, 0], fd.E[b, 0])
+        for j in range(1, nu + 1):
+            rj = resid.tip_residual(md, ct, b, probe_x(x, h, j), fd.n[b, j], fd.m[b, j], fd.E[b, j])
+            for i in range(nu):
+                J[i, j - 1] = (rj[i] - r0[i]) / h[j - 1]
+        return J
+
+    @wp.kernel(module=module, enable_backward=False)
+    def verdict_kernel(md: Model, ct: Control, sp: Step, x: wp.array(dtype=vecu), mask: wp.array(dtype=int),
+                       rel: dtype, axial_strain: dtype, neutral: dtype, coarse: int, fd: Fields,
+                       jac: wp.array(dtype=matu), index: wp.array(dtype=int), margin: wp.array(dtype=dtype),
+                       lag: wp.array(dtype=dtype)):
+        b = wp.tid()
+        if mask[b] == 0:
+            return
+        x0 = x[b]
+        h = cl.steps(md, b, x0, rel, axial_strain)
+        ir = rf.row(b, md.rod)
+        L = md.rod[ir, LENGTH]
+        a = wp.sqrt(md.rod[ir, KBT] / L)
+        sc = vec6(a / L, a, L / a, one / a, zero, zero)  # symplectic scaling of [dp, eta, dN, dM]
+        colscale = cl.clamp(md, ct, sp, fd, b, x0, h, sc)
+        n_int = md.grid.shape[1] - 1
+        lift = vec6()
+        cur = vec6()
+        beta = zero
+        k = int(0)  # noqa: UP018, RUF046 (a dynamic variable for Warp)
+        while k < n_int:
+            k1 = k + 1
+            if coarse != 0 and k + 2 <= n_int and rf.node_busy(md, b, k1) == 0:  # nothing acts between
+                k1 = k + 2
+            advance(md, ct, sp, fd, b, x0, h, sc, colscale, k, k1)
+            phi, beta = ch.phases(fd.wk, b, beta)
+            if k == 0:
+                lift = tk.start(phi)
+                cur = phi
+            else:
+                cur, lift = tk.track(cur, lift, phi)
+            k = k1
+        idx, mg = tk.verdict(lift, neutral)
+        index[b] = idx
+        margin[b] = mg
+        asym, size = tk.asymmetry(fd.wk, b)  # at the tip: U^T V is constant along s, its errors add up
+        lag[b] = asym / wp.max(size, dtype(1e-300))
+        jac[b] = shooting_jacobian(md, ct, fd, b, x0, h)
+
+    return SimpleNamespace(kernel=verdict_kernel, Fields=Fields)
