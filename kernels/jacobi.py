@@ -18,7 +18,7 @@ one. P comes from the chart (U cos b + V sin b, V cos b - U sin b) of the best-c
 angles b, so a singular U (a crossing, the inextensible rod's axial direction) needs no care.
 
   make_verdict_kernel   the kernel of one static variant (module "evaluate")
-  symmetric_eigenvalues, inverse6   its small dense linear algebra (6 x 6)
+  kernels/dense6.py     its small dense linear algebra (6 x 6)
 """
 
 import functools
@@ -290,22 +290,25 @@ def make_trajectory_state(dtype, tendons: int, displaced: int):
 
 
 @functools.cache
+def _shared(dtype, model: str, rod: str, features: Features) -> SimpleNamespace:
+    """What the trajectory functions of one variant share: its types, structs and rod terms."""
+    ts = make_trajectory_state(dtype, features.tendons, features.displaced)
+    st = make_structs(dtype, False)
+    return SimpleNamespace(vec3=wp.types.vector(3, dtype), nu=N_BASE + features.displaced, vec6=make_dense6(dtype).vec6,
+                           vecu=ts.vecu, evec=tendon_vectors(dtype, features.tendons)[1], Model=st.Model,
+                           Control=st.Control, Step=st.Step, Fields=ts.Fields, probe_x=ts.probe_x, keep=ts.keep,
+                           rf=make_rod_funcs(dtype, model, False, rod, features),
+                           fl=make_fields(dtype, model, rod, features))
+
+
+@functools.cache
 def make_clamp(dtype, integrator: str, model: str, rod: str, features: Features):
     """``clamp``: every trajectory at s = 0; ``steps``: the probes' steps."""
-    vec3 = wp.types.vector(3, dtype)
     zero = dtype(0.0)
     one = dtype(1.0)
-    K = features.tendons
-    evec = tendon_vectors(dtype, K)[1]
-    nu = N_BASE + features.displaced
-    vec6 = make_dense6(dtype).vec6
-    ts = make_trajectory_state(dtype, K, features.displaced)
-    vecu = ts.vecu
-    Fields, probe_x, keep = ts.Fields, ts.probe_x, ts.keep
-    st = make_structs(dtype, False)
-    Model, Control, Step = st.Model, st.Control, st.Step
-    rf = make_rod_funcs(dtype, model, False, rod, features)
-    fl = make_fields(dtype, model, rod, features)
+    v = _shared(dtype, model, rod, features)
+    vec3, nu, vec6, vecu, evec = v.vec3, v.nu, v.vec6, v.vecu, v.evec
+    Model, Control, Step, Fields, probe_x, keep, rf, fl = v.Model, v.Control, v.Step, v.Fields, v.probe_x, v.keep, v.rf, v.fl
     stages = STAGES[integrator]  # times the intervals: the first slot of the jumps (kernels/integration.py)
 
     @wp.func
@@ -349,17 +352,9 @@ def make_clamp(dtype, integrator: str, model: str, rod: str, features: Features)
 @functools.cache
 def make_advance(dtype, integrator: str, model: str, rod: str, features: Features):
     """``advance``: every trajectory over the next interval, U and V at its end."""
-    vec3 = wp.types.vector(3, dtype)
-    K = features.tendons
-    nu = N_BASE + features.displaced
-    vec6 = make_dense6(dtype).vec6
-    ts = make_trajectory_state(dtype, K, features.displaced)
-    vecu = ts.vecu
-    Fields, probe_x, keep = ts.Fields, ts.probe_x, ts.keep
-    st = make_structs(dtype, False)
-    Model, Control, Step = st.Model, st.Control, st.Step
-    rf = make_rod_funcs(dtype, model, False, rod, features)
-    fl = make_fields(dtype, model, rod, features)
+    v = _shared(dtype, model, rod, features)
+    vec3, nu, vec6, vecu = v.vec3, v.nu, v.vec6, v.vecu
+    Model, Control, Step, Fields, probe_x, keep, rf, fl = v.Model, v.Control, v.Step, v.Fields, v.probe_x, v.keep, v.rf, v.fl
     interval = make_interval(dtype, integrator, model, False, rod, features).interval
     stages = STAGES[integrator]  # times the intervals: the first slot of the jumps (kernels/integration.py)
 
@@ -402,20 +397,16 @@ def make_verdict_kernel(dtype, integrator: str, model: str, rod: str, features: 
     Lagrangian check, and the shooting Jacobian J = dr/dx by forward differences (the probes
     of the displaced tendons' tensions run beside, for the wires' correction on the host).
     coarse = 1: the fields are integrated over two intervals wherever nothing acts on the node
-    between them (as the probes of a first Jacobian), half the work and half the nodes."""
+    between them, half the work and half the nodes."""
     zero = dtype(0.0)
     one = dtype(1.0)
-    nu = N_BASE + features.displaced
-    ts = make_trajectory_state(dtype, features.tendons, features.displaced)
-    Fields, vecu, probe_x = ts.Fields, ts.vecu, ts.probe_x
+    v = _shared(dtype, model, rod, features)
+    nu, vec6, vecu, Model, Control, Step, Fields, probe_x, rf = (v.nu, v.vec6, v.vecu, v.Model, v.Control, v.Step,
+                                                                 v.Fields, v.probe_x, v.rf)
     matu = wp.types.matrix((nu, nu), dtype)
     cl = make_clamp(dtype, integrator, model, rod, features)
     advance = make_advance(dtype, integrator, model, rod, features)
     resid = make_residual(dtype, False, features.tendons, features.displaced)
-    vec6 = make_dense6(dtype).vec6
-    st = make_structs(dtype, False)
-    Model, Control, Step = st.Model, st.Control, st.Step
-    rf = make_rod_funcs(dtype, model, False, rod, features)
     ch, tk = make_charts(dtype), make_tracking(dtype)
     module = module_names(dtype, integrator, model, False, rod, features)["evaluate"]
 
