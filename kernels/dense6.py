@@ -9,7 +9,8 @@ from types import SimpleNamespace
 
 import warp as wp
 
-SWEEPS = 12  # cyclic Jacobi sweeps at most (a 6 x 6 converges in 5-7)
+QR_STEPS = 60  # implicit QR steps at most (a 6 x 6 converges in about 2 per eigenvalue)
+EPS = {wp.float64: 2.2e-16, wp.float32: 1.2e-7}  # unit round-off: a subdiagonal below it deflates
 
 
 @functools.cache
@@ -81,45 +82,120 @@ def make_lu(dtype):
 
 
 @functools.cache
-def make_eigen(dtype):
-    """The eigenvalues of a symmetric 6 x 6 slot (cyclic Jacobi)."""
-    vec6 = wp.types.vector(6, dtype)
+def make_tridiagonal(dtype):
+    """Householder reduction of a symmetric 6 x 6 slot to a tridiagonal matrix (Golub & Van Loan,
+    Matrix Computations, section 8.3.1)."""
     zero = dtype(0.0)
-    one = dtype(1.0)
+    two = dtype(2.0)
     Work = wp.array4d(dtype=dtype)
 
     @wp.func
+    def tridiagonalise(wk: Work, b: int, s: int):
+        """Slot s reduced in place by Householder reflections: the diagonal d_i at (i, i), the
+        subdiagonal e_i at (i + 1, i) (the rest of the lower triangle and row k's upper part used
+        as scratch)."""
+        for k in range(4):
+            tail = zero  # |x|^2 over the rows below k + 1: nothing to reflect when it is 0
+            for i in range(k + 2, 6):
+                tail = tail + wk[b, s, i, k] * wk[b, s, i, k]
+            if tail > zero:
+                x0 = wk[b, s, k + 1, k]
+                alpha = -wp.sqrt(tail + x0 * x0)
+                if x0 < zero:
+                    alpha = -alpha
+                wk[b, s, k + 1, k] = x0 - alpha  # v = x - alpha e_1, in column k
+                vv = two * (tail + x0 * x0 - x0 * alpha)
+                for i in range(k + 1, 6):  # p = 2 A v / v^T v, in row k
+                    acc = zero
+                    for j in range(k + 1, 6):
+                        acc = acc + wk[b, s, i, j] * wk[b, s, j, k]
+                    wk[b, s, k, i] = two * acc / vv
+                kk = zero
+                for i in range(k + 1, 6):
+                    kk = kk + wk[b, s, i, k] * wk[b, s, k, i]
+                kk = kk / vv
+                for i in range(k + 1, 6):  # w = p - K v
+                    wk[b, s, k, i] = wk[b, s, k, i] - kk * wk[b, s, i, k]
+                for i in range(k + 1, 6):  # A <- A - v w^T - w v^T
+                    for j in range(k + 1, 6):
+                        wk[b, s, i, j] = wk[b, s, i, j] - wk[b, s, i, k] * wk[b, s, k, j] - wk[b, s, k, i] * wk[b, s, j, k]
+                wk[b, s, k + 1, k] = alpha
+                for i in range(k + 2, 6):
+                    wk[b, s, i, k] = zero
+
+    return tridiagonalise
+
+
+@functools.cache
+def make_eigen(dtype):
+    """The eigenvalues of a symmetric 6 x 6 slot: the tridiagonal reduction, then implicit QR steps
+    with Wilkinson's shift and deflation (Golub & Van Loan, sections 8.3.2-8.3.3). About 10x fewer
+    flops than cyclic Jacobi sweeps; backward stable: the eigenvalues to a few units of round-off
+    times the matrix's norm."""
+    vec6 = wp.types.vector(6, dtype)
+    zero = dtype(0.0)
+    one = dtype(1.0)
+    two = dtype(2.0)
+    eps = dtype(EPS[dtype])
+    Work = wp.array4d(dtype=dtype)
+    tridiagonalise = make_tridiagonal(dtype)
+
+    @wp.func
+    def qr_step(wk: Work, b: int, s: int, lo: int, hi: int):
+        """One implicit QR step with Wilkinson's shift on the unreduced block lo..hi."""
+        d = (wk[b, s, hi - 1, hi - 1] - wk[b, s, hi, hi]) / two
+        ee = wk[b, s, hi, hi - 1] * wk[b, s, hi, hi - 1]
+        root = wp.sqrt(d * d + ee)
+        if d < zero:
+            root = -root
+        x = wk[b, s, lo, lo] - (wk[b, s, hi, hi] - ee / (d + root))
+        z = wk[b, s, lo + 1, lo]
+        for k in range(lo, hi):
+            r = wp.sqrt(x * x + z * z)
+            c = one
+            sn = zero
+            if r > zero:
+                c = x / r
+                sn = z / r
+            if k > lo:
+                wk[b, s, k, k - 1] = r
+            ak = wk[b, s, k, k]
+            ak1 = wk[b, s, k + 1, k + 1]
+            bk = wk[b, s, k + 1, k]
+            wk[b, s, k, k] = c * c * ak + two * c * sn * bk + sn * sn * ak1
+            wk[b, s, k + 1, k + 1] = sn * sn * ak - two * c * sn * bk + c * c * ak1
+            wk[b, s, k + 1, k] = c * sn * (ak1 - ak) + (c * c - sn * sn) * bk
+            if k < hi - 1:
+                z = sn * wk[b, s, k + 2, k + 1]  # the bulge at (k + 2, k)
+                wk[b, s, k + 2, k + 1] = c * wk[b, s, k + 2, k + 1]
+                x = wk[b, s, k + 1, k]
+
+    @wp.func
+    def negligible(wk: Work, b: int, s: int, i: int):
+        """Is the subdiagonal e_i = (i + 1, i) below round-off of its two diagonal neighbours?"""
+        return wp.abs(wk[b, s, i + 1, i]) <= eps * (wp.abs(wk[b, s, i, i]) + wp.abs(wk[b, s, i + 1, i + 1]))
+
+    @wp.func
     def symmetric_eigenvalues(wk: Work, b: int, s: int):
-        """The eigenvalues of the symmetric matrix in slot s (overwritten)."""
-        for _sweep in range(SWEEPS):
-            off = zero
-            scale = zero
-            for i in range(6):
-                scale = scale + wk[b, s, i, i] * wk[b, s, i, i]
-                for j in range(i + 1, 6):
-                    off = off + wk[b, s, i, j] * wk[b, s, i, j]
-            if off <= dtype(1e-24) * scale:  # eigenvalues to ~1e-12 relative
-                break
-            for p in range(5):
-                for q in range(p + 1, 6):
-                    apq = wk[b, s, p, q]
-                    if apq != zero:
-                        theta = (wk[b, s, q, q] - wk[b, s, p, p]) / (dtype(2.0) * apq)
-                        t = one
-                        if theta != zero:
-                            t = wp.sign(theta) / (wp.abs(theta) + wp.sqrt(theta * theta + one))
-                        c = one / wp.sqrt(t * t + one)
-                        sn = t * c
-                        for k in range(6):
-                            akp = wk[b, s, k, p]
-                            akq = wk[b, s, k, q]
-                            wk[b, s, k, p] = c * akp - sn * akq
-                            wk[b, s, k, q] = sn * akp + c * akq
-                        for k in range(6):
-                            apk = wk[b, s, p, k]
-                            aqk = wk[b, s, q, k]
-                            wk[b, s, p, k] = c * apk - sn * aqk
-                            wk[b, s, q, k] = sn * apk + c * aqk
+        """The eigenvalues of the symmetric matrix in slot s (overwritten), unordered."""
+        tridiagonalise(wk, b, s)
+        hi = int(5)  # noqa: UP018, RUF046 (a dynamic variable for Warp)
+        steps = int(0)  # noqa: UP018, RUF046
+        while hi > 0 and steps < QR_STEPS:
+            if negligible(wk, b, s, hi - 1):
+                hi = hi - 1
+            else:
+                lo = hi - 1  # the unreduced block ending at hi starts after the next negligible e
+                searching = int(1)  # noqa: UP018, RUF046
+                while searching == 1:
+                    if lo == 0:  # noqa: SIM114 (no e_(lo - 1) to read at lo = 0)
+                        searching = 0
+                    elif negligible(wk, b, s, lo - 1):
+                        searching = 0
+                    else:
+                        lo = lo - 1
+                qr_step(wk, b, s, lo, hi)
+                steps = steps + 1
         ev = vec6()
         for i in range(6):
             ev[i] = wk[b, s, i, i]

@@ -187,10 +187,12 @@ def make_tracking(dtype):
 
     @wp.func
     def track(cur: vec6, lift: vec6, phi: vec6):
-        """The lifts moved by the nearest matching of the new phases ``phi`` to ``cur``."""
+        """The lifts moved by the nearest matching of the new phases ``phi`` to ``cur``, and the
+        largest move matched (a move near pi / 2 is ambiguous: the step was too long)."""
         used_old = int(0)  # noqa: UP018, RUF046 (a dynamic variable for Warp)
         used_new = int(0)  # noqa: UP018, RUF046
         nxt = vec6()
+        jump = dtype(0.0)
         for _round in range(6):
             bi = int(0)  # noqa: UP018, RUF046
             bj = int(0)  # noqa: UP018, RUF046
@@ -206,17 +208,20 @@ def make_tracking(dtype):
                                 bj = j
             lift[bi] = lift[bi] + wrap(phi[bj] - cur[bi])
             nxt[bi] = phi[bj]
+            jump = wp.max(jump, bd)
             used_old = used_old | (1 << bi)
             used_new = used_new | (1 << bj)
-        return nxt, lift
+        return nxt, lift, jump
 
     @wp.func
     def start(phi: vec6):
-        """The lifts at the first node: the phases leave 0 at the clamp."""
+        """The lifts at the first node (the phases leave 0 at the clamp) and the largest."""
         lift = vec6()
+        jump = dtype(0.0)
         for i in range(6):
             lift[i] = wrap(phi[i])
-        return lift
+            jump = wp.max(jump, wp.abs(lift[i]))
+        return lift, jump
 
     @wp.func
     def verdict(lift: vec6, neutral: dtype):
@@ -360,11 +365,9 @@ def make_advance(dtype, integrator: str, model: str, rod: str, features: Feature
 
     @wp.func
     def advance(md: Model, ct: Control, sp: Step, fd: Fields, b: int, x: vecu, h: vecu, sc: vec6, colscale: vec6,
-                k: int, k1: int):
-        """Every trajectory from node k to node k1; U and V (scaled) at k1, before its jumps."""
-        ig = rf.row(b, md.grid)
-        s = md.grid[ig, k]
-        s1 = md.grid[ig, k1]
+                k: int, s: dtype, s1: dtype, k1: int, at_node: int):
+        """Every trajectory from s (in interval k or at its node) to s1 (node k1 with ``at_node``,
+        else inside interval k, k1 = k + 1); U and V (scaled) at s1, before the node's jumps."""
         js = (md.grid.shape[1] - 1) * stages + 2 * k1
         p0 = vec3()
         R0 = wp.identity(3, dtype)
@@ -385,19 +388,75 @@ def make_advance(dtype, integrator: str, model: str, rod: str, features: Feature
                     dp, eta, dN, dM = fl.column(p0, R0, N0, M0, p, R, Nt, Mt, h[j - 1], sc)
                     cs = colscale[j - 1]
                     fl.put_column(fd.wk, b, j - 1, dp * cs, eta * cs, dN * cs, dM * cs)
-            n, m, E = rf.node_jumps(md, ct, sp, b, s1, R, n, m, vec3(), vec3(), t0, E, k1, js, js + 1, 0)
+            if at_node != 0:
+                n, m, E = rf.node_jumps(md, ct, sp, b, s1, R, n, m, vec3(), vec3(), t0, E, k1, js, js + 1, 0)
             keep(fd, b, j, p, R, n, m, E)
 
     return advance
 
 
 @functools.cache
+def make_sweep(dtype, integrator: str, model: str, rod: str, features: Features):
+    """``sweep``: the fields from the clamp to the tip over the steps of one pass, their phases
+    tracked: the lifts at the tip and the largest move between two steps."""
+    zero = dtype(0.0)
+    v = _shared(dtype, model, rod, features)
+    vec6, vecu, Model, Control, Step, Fields, rf = v.vec6, v.vecu, v.Model, v.Control, v.Step, v.Fields, v.rf
+    advance = make_advance(dtype, integrator, model, rod, features)
+    ch, tk = make_charts(dtype), make_tracking(dtype)
+
+    @wp.func
+    def sweep(md: Model, ct: Control, sp: Step, fd: Fields, b: int, x0: vecu, h: vecu, sc: vec6, colscale: vec6,
+              stride: int):
+        """stride >= 2: up to ``stride`` intervals a step, stopping at every node something acts
+        on; 1: the full grid; <= -2: -stride steps an interval."""
+        n_int = md.grid.shape[1] - 1
+        lift = vec6()
+        cur = vec6()
+        beta = zero
+        jump = zero
+        ig = rf.row(b, md.grid)
+        parts = wp.max(-stride, 1)  # steps per interval
+        k = int(0)  # noqa: UP018, RUF046 (a dynamic variable for Warp)
+        part = int(0)  # noqa: UP018, RUF046
+        first = int(1)  # noqa: UP018, RUF046
+        while k < n_int:
+            k1 = k + 1
+            while k1 - k < stride and k1 < n_int:  # over nodes where nothing acts
+                if rf.node_busy(md, b, k1) != 0:
+                    break
+                k1 = k1 + 1
+            s = md.grid[ig, k]
+            ds = (md.grid[ig, k1] - s) / dtype(parts)
+            at_node = wp.where(part + 1 == parts, 1, 0)
+            advance(md, ct, sp, fd, b, x0, h, sc, colscale, k, s + dtype(part) * ds,
+                    wp.where(at_node == 1, md.grid[ig, k1], s + dtype(part + 1) * ds), k1, at_node)
+            phi, beta = ch.phases(fd.wk, b, beta)
+            moved = zero
+            if first == 1:
+                lift, moved = tk.start(phi)
+                cur = phi
+                first = 0
+            else:
+                cur, lift, moved = tk.track(cur, lift, phi)
+            jump = wp.max(jump, moved)
+            part = part + 1
+            if at_node == 1:
+                k = k1
+                part = 0
+        return lift, jump
+
+    return sweep
+
+
+@functools.cache
 def make_verdict_kernel(dtype, integrator: str, model: str, rod: str, features: Features):
     """``verdict_kernel``: per rod (mask), from its solution x, the stability index, margin and
-    Lagrangian check, and the shooting Jacobian J = dr/dx by forward differences (the probes
-    of the displaced tendons' tensions run beside, for the wires' correction on the host).
-    coarse = 1: the fields are integrated over two intervals wherever nothing acts on the node
-    between them, half the work and half the nodes."""
+    Lagrangian check, the largest phase move between two nodes, and the shooting Jacobian
+    J = dr/dx by forward differences (the probes of the displaced tendons' tensions run beside,
+    for the wires' correction on the host). stride >= 2: the fields are integrated over up to
+    ``stride`` intervals a step, stopping at every node something acts on; 1: the full grid;
+    stride <= -2: -stride steps an interval (phases that turn too fast for the grid)."""
     zero = dtype(0.0)
     one = dtype(1.0)
     v = _shared(dtype, model, rod, features)
@@ -405,9 +464,9 @@ def make_verdict_kernel(dtype, integrator: str, model: str, rod: str, features: 
                                                                  v.Fields, v.probe_x, v.rf)
     matu = wp.types.matrix((nu, nu), dtype)
     cl = make_clamp(dtype, integrator, model, rod, features)
-    advance = make_advance(dtype, integrator, model, rod, features)
+    sweep = make_sweep(dtype, integrator, model, rod, features)
     resid = make_residual(dtype, False, features.tendons, features.displaced)
-    ch, tk = make_charts(dtype), make_tracking(dtype)
+    tk = make_tracking(dtype)
     module = module_names(dtype, integrator, model, False, rod, features)["evaluate"]
 
     @wp.func
@@ -423,9 +482,9 @@ def make_verdict_kernel(dtype, integrator: str, model: str, rod: str, features: 
 
     @wp.kernel(module=module, enable_backward=False)
     def verdict_kernel(md: Model, ct: Control, sp: Step, x: wp.array(dtype=vecu), mask: wp.array(dtype=int),
-                       rel: dtype, axial_strain: dtype, neutral: dtype, coarse: int, fd: Fields,
+                       rel: dtype, axial_strain: dtype, neutral: dtype, stride: int, fd: Fields,
                        jac: wp.array(dtype=matu), index: wp.array(dtype=int), margin: wp.array(dtype=dtype),
-                       lag: wp.array(dtype=dtype)):
+                       lag: wp.array(dtype=dtype), jumps: wp.array(dtype=dtype)):
         b = wp.tid()
         if mask[b] == 0:
             return
@@ -436,28 +495,13 @@ def make_verdict_kernel(dtype, integrator: str, model: str, rod: str, features: 
         a = wp.sqrt(md.rod[ir, KBT] / L)
         sc = vec6(a / L, a, L / a, one / a, zero, zero)  # symplectic scaling of [dp, eta, dN, dM]
         colscale = cl.clamp(md, ct, sp, fd, b, x0, h, sc)
-        n_int = md.grid.shape[1] - 1
-        lift = vec6()
-        cur = vec6()
-        beta = zero
-        k = int(0)  # noqa: UP018, RUF046 (a dynamic variable for Warp)
-        while k < n_int:
-            k1 = k + 1
-            if coarse != 0 and k + 2 <= n_int and rf.node_busy(md, b, k1) == 0:  # nothing acts between
-                k1 = k + 2
-            advance(md, ct, sp, fd, b, x0, h, sc, colscale, k, k1)
-            phi, beta = ch.phases(fd.wk, b, beta)
-            if k == 0:
-                lift = tk.start(phi)
-                cur = phi
-            else:
-                cur, lift = tk.track(cur, lift, phi)
-            k = k1
+        lift, jump = sweep(md, ct, sp, fd, b, x0, h, sc, colscale, stride)
         idx, mg = tk.verdict(lift, neutral)
         index[b] = idx
         margin[b] = mg
         asym, size = tk.asymmetry(fd.wk, b)  # at the tip: U^T V is constant along s, its errors add up
         lag[b] = asym / wp.max(size, dtype(1e-300))
+        jumps[b] = jump
         jac[b] = shooting_jacobian(md, ct, fd, b, x0, h)
 
     return SimpleNamespace(kernel=verdict_kernel, Fields=Fields)

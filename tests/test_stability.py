@@ -56,9 +56,11 @@ def test_the_fields_stay_lagrangian_to_the_order_of_the_integrator():
     """U^T V - V^T U is constant along s for exact Jacobi fields, zero from the clamp. RK4's flow
     map is not symplectic, so the computed asymmetry at the tip is its truncation error: it falls
     at fourth order as N doubles (a wrong field, e.g. one missing the tendons' part of V, stays
-    near 1e-2)."""
+    near 1e-2). At N = 40 and 80 the verdict keeps its double steps for both rods (phases move
+    under pi / 4 a step), so the fields are compared on steps of L / 20 and L / 40; at N = 20 the
+    rod at 5 P_cr goes on to the full grid (moves of 1.04 rad), the steps of N = 40."""
     loads = [3.0, 5.0]
-    err = [tw.solve_static(robot(loads), nodes=n, rod="kirchhoff", tol=1e-12).lagrangian_error for n in (20, 40)]
+    err = [tw.solve_static(robot(loads), nodes=n, rod="kirchhoff", tol=1e-12).lagrangian_error for n in (40, 80)]
     assert (err[0] / err[1] > 10).all(), err
     assert (err[1] < 1e-6).all(), err
 
@@ -119,6 +121,40 @@ def test_displacement_controlled_wires_raise_the_buckling_load_fourfold():
     tens = tw.solve_static(robot(loads, [tw.Tendon(offset=o) for o in THREE]), sol.tendon_tension_base, nodes=40,
                            stability="check", tol=1e-12)
     assert tens.stability_index.tolist() == [2, 2]
+
+
+def test_phases_that_turn_fast_between_nodes_are_followed_on_finer_steps(monkeypatch):
+    """Heavily loaded precurved rods on a coarse grid (N = 20): some phase turns by more than
+    pi / 4 between nodes, where matching the phases from node to node can count wrong. The verdict
+    then goes on to 2, 4, ... steps an interval, and its count equals that of a grid 4x finer
+    (whose phases turn less than pi / 4). Taking the full grid's count as it stands (the rule
+    before the moves were checked) miscounts some of them."""
+    from tdcr_warp.physics import stability
+
+    rng = np.random.default_rng(20)
+    B = 48
+    F = np.zeros((B, 3))
+    F[:, 2] = -rng.uniform(0.0, 12.0, B) * P_CR
+    F[:, :2] = rng.normal(0.0, 0.02, (B, 2)) * P_CR
+    rob = tw.Robot(length=L, youngs_modulus=E, poisson_ratio=NU, radius=RB, density=7800.0, gravity=(0.0, 0.0, -9.81),
+                   tip_force=F, tendons=tuple(tw.Tendon(offset=o) for o in THREE), precurvature=(2.0, 0.0, 0.5))
+    tau = rng.uniform(0.0, 3.0, (B, 3))
+    opts = {"rod": "cosserat", "tol": 1e-12, "continuation": 0, "threads": 1}
+    fine = tw.solve_static(rob, tau, nodes=80, **opts)
+    sol = tw.solve_static(rob, tau, nodes=20, **opts)
+    ok = fine.converged & sol.converged
+    assert ok.sum() >= 40 and (fine.stability_index[ok] >= 0).all() and (sol.stability_index[ok] >= 0).all()
+    assert (sol.stability_index[ok] == fine.stability_index[ok]).all()
+    assert set(sol.stability_index[ok].tolist()) >= {0, 2, 4}
+    monkeypatch.setattr(stability, "JUMP_MAX", np.inf)
+    monkeypatch.setattr(stability, "SUBSTEPS", ())
+    old = tw.solve_static(rob, tau, nodes=20, **opts)
+    assert (old.stability_index[ok] != fine.stability_index[ok]).any()
+    monkeypatch.setattr(stability, "JUMP_MAX", 0.0)  # no pass trusted: not assessed, and said why
+    none = tw.solve_static(rob, tau, nodes=20, **opts)
+    assert (none.stability_index[ok] == -1).all() and np.isnan(none.stability_margin[ok]).all()
+    assert {none.stability_reasons()[i] for i in np.flatnonzero(ok)} == {
+        "not assessed: the phases turn too fast for the grid (raise nodes)"}
 
 
 def test_what_the_test_does_not_assess_is_said():

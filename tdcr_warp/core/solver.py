@@ -54,6 +54,13 @@ def coarse_stride(n_int: int, integrator: str, dynamic: bool) -> int:
     return stride if not dynamic and integrator == "rk4" and n_int >= 4 else 0
 
 
+def verdict_strides(n_int: int, integrator: str, dynamic: bool) -> tuple[int, ...]:
+    """The stability verdict's passes over the grid, coarse to fine (intervals per step of its
+    fields): double steps, then the full grid; the full grid alone below COARSE_MIN_NODES
+    intervals or with another integrator (the physics layer's Verdict adds finer passes)."""
+    return (2, 1) if not dynamic and integrator == "rk4" and n_int >= COARSE_MIN_NODES else (1,)
+
+
 def _fused(driver: str | None, device) -> bool:
     return (driver or ("probes" if device.is_cuda else "fused")) == "fused"
 
@@ -157,9 +164,9 @@ class Shooting:
         self.loop = NewtonLoop(k, device, b, _fused(driver, device))
         self.probe = Probes(self)
         self._evaluate = Replay(k.evaluate, b, device)
-        # statics: double steps for the stability verdict where that stays accurate (RK4, error ~h^4,
+        # statics: double steps for the stability verdict where they stay accurate (RK4, error ~h^4,
         # on a fine enough grid); the first Jacobian of a Broyden solve from probes over long steps
-        self.coarse_allowed = int(not dynamic and integrator == "rk4" and n1 - 1 >= COARSE_MIN_NODES)
+        self.verdict_strides = verdict_strides(n1 - 1, integrator, dynamic)
         self.coarse_stride = coarse_stride(n1 - 1, integrator, dynamic)
         self.coarse_jacobian = self.coarse_stride
         _load_solver_kernels(k, self.loop.fused, dynamic, device)  # before threads race to it

@@ -67,7 +67,7 @@ class Assessor:
                         "stability_margin": np.full(b, np.nan)}
             else:
                 if id(sh) not in self.verdicts:
-                    self.verdicts[id(sh)] = Verdict(sh, t, o.precision, bool(sh.coarse_allowed))
+                    self.verdicts[id(sh)] = Verdict(sh, t, o.precision, sh.verdict_strides)
                 v = self.verdicts[id(sh)](ok, taut if t.features.displaced else None)
                 out |= {k: v[k] for k in ("stability_index", "lagrangian_error", "stability_margin")}
                 out["integrations"] = out["integrations"] + np.where(ok, 1 + t.nu, 0)

@@ -49,8 +49,20 @@ __all__ = ["NEUTRAL", "Verdict", "wires_stabilised"]
 
 WIRE_TOL = 1e-6  # relative size of a positive eigenvalue of the wires' Schur complement
 NEUTRAL = 1e-6  # rad: a tip phase this close to an odd multiple of pi/2 is a zero mode, not unstable
-REFINE_MARGIN = 1e-3  # rad: a coarse verdict this close to a change of the count is redone on the full grid
-COARSE_ARG = 8  # the position of ``coarse`` among the verdict kernel's arguments
+# The passes of the verdict, coarse to fine: double steps where the grid allows
+# (tdcr_warp.core.solver.verdict_strides), the full grid, then SUBSTEPS steps an interval. A rod
+# goes on to the next pass unless its count is trusted: no phase moved more than JUMP_MAX between
+# two steps (the nearest matching of the phases from step to step is unambiguous only for moves
+# well under pi / 2: the full grid at N = 20 miscounted heavily loaded precurved rods whose phases
+# moved 1.2-1.6 rad, experiments/verdict_passes.py) and, for double steps, a margin of at least
+# REFINE_MARGIN with fields Lagrangian to within LAG_TRUST times it (their asymmetry measures the
+# integration error, and the phases' with it). A rod trusted by no pass is not assessed (index -1,
+# margin NaN: "the phases turn too fast for the grid").
+REFINE_MARGIN = 1e-3  # rad: the double steps' margin
+LAG_TRUST = 0.1
+JUMP_MAX = 0.25 * np.pi  # rad
+SUBSTEPS = (2, 4, 8, 16)  # steps an interval of the passes after the full grid
+STRIDE_ARG = 8  # the position of ``stride`` among the verdict kernel's arguments
 
 
 class Verdict:
@@ -58,7 +70,7 @@ class Verdict:
     (kernels/jacobi.py): its arrays allocated once and its launch recorded once and replayed
     (tdcr_warp.core.launch)."""
 
-    def __init__(self, sh, tables: Tables, precision: str, coarse: bool):
+    def __init__(self, sh, tables: Tables, precision: str, strides: tuple[int, ...]):
         k, dev, b = sh.kern, sh.device, sh.b
         wdt = sh.dev.wdtype
         self.tables = tables
@@ -72,36 +84,45 @@ class Verdict:
         self.margin = wp.zeros(b, dtype=wdt, device=dev)
         self.lag = wp.zeros(b, dtype=wdt, device=dev)
         self.jac = wp.zeros(b, dtype=k.matu, device=dev)
-        self.host = {name: Mirror(getattr(self, name), np.float64) for name in ("mask", "index", "margin", "lag", "jac")}
-        self.coarse = coarse
+        self.jumps = wp.zeros(b, dtype=wdt, device=dev)
+        names = ("mask", "index", "margin", "lag", "jac", "jumps")
+        self.host = {name: Mirror(getattr(self, name), np.float64) for name in names}
+        self.strides = strides
         self.args = [sh.model, sh.control, sh.step, sh.newton.x, self.mask, wdt(PROBE_REL[precision]),
-                     wdt(AXIAL_STRAIN[precision]), wdt(NEUTRAL), int(coarse), fd, self.jac, self.index,
-                     self.margin, self.lag]
+                     wdt(AXIAL_STRAIN[precision]), wdt(NEUTRAL), 1, fd, self.jac, self.index,
+                     self.margin, self.lag, self.jumps]
         self.launch = Replay(k.verdict, b, dev)
 
-    def _run(self, mask: np.ndarray, coarse: bool) -> None:
+    def _run(self, mask: np.ndarray, stride: int) -> np.ndarray:
+        """The verdict of the rods in ``mask`` by one pass (``stride`` intervals a step; -m: m
+        steps an interval): the rods whose count that pass cannot vouch for."""
         self.host["mask"].put(mask.astype(np.int32))
-        self.args[COARSE_ARG] = int(coarse)
+        self.args[STRIDE_ARG] = stride
         self.launch(*self.args)
+        trusted = self.host["jumps"].get(np.float64) <= JUMP_MAX
+        if stride >= 2:
+            margin = self.host["margin"].get(np.float64)
+            trusted &= (margin >= REFINE_MARGIN) & (self.host["lag"].get(np.float64) <= LAG_TRUST * margin)
+        return mask & ~trusted
 
     def __call__(self, converged: np.ndarray, taut: np.ndarray | None) -> dict[str, np.ndarray]:
         """Per rod: ``stability_index`` (0 stable, -1 not converged), ``lagrangian_error``,
         ``stability_margin`` (the smallest distance [rad] of a tip phase from the boundary of
-        the count) and the shooting Jacobian ``unknowns_jacobian`` at x* (forward differences; over
-        double steps with ``coarse``). taut (b, K) or None: the taut displaced tendons (the wires'
-        correction, ``wires_stabilised``)."""
-        self._run(converged, self.coarse)
-        if self.coarse:  # refined on the full grid where the coarse count is within its error of a change
-            near = converged & (self.host["margin"].get(np.float64) < REFINE_MARGIN)
-            if near.any():
-                self._run(near, False)
-        index = np.where(converged, self.host["index"].get(np.int64), -1)
+        the count; NaN where no pass could be trusted, index -1) and the shooting Jacobian
+        ``unknowns_jacobian`` at x* (forward differences, over the steps of the pass that decided).
+        taut (b, K) or None: the taut displaced tendons (the wires' correction, ``wires_stabilised``)."""
+        todo = converged.astype(bool)
+        for stride in self.strides + tuple(-m for m in SUBSTEPS):
+            todo = self._run(todo, stride)
+            if not todo.any():
+                break
+        index = np.where(converged & ~todo, self.host["index"].get(np.int64), -1)
         lag = np.where(converged, self.host["lag"].get(np.float64), np.nan)
-        margin = np.where(converged, self.host["margin"].get(np.float64), np.nan)
+        margin = np.where(converged & ~todo, self.host["margin"].get(np.float64), np.nan)
         jac = self.host["jac"].get(np.float64)
         if taut is not None and taut.any():
             wires = wires_stabilised(jac, self.tables, taut, converged)
-            index = np.where(converged & (wires >= 0), index - wires, -1)
+            index = np.where(converged & (wires >= 0) & (index >= 0), index - wires, -1)
         return {"stability_index": index, "lagrangian_error": lag, "stability_margin": margin,
                 "unknowns_jacobian": jac}
 

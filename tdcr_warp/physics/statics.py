@@ -58,8 +58,9 @@ class StaticSolution:
     (B, K, K) d (slack length [m] of slack tendon k) / d command[l] (zero rows for taut tendons);
     parameter_jacobian (B, 6, P) d pose / d parameter (units of each parameter,
     ``parameter_names``). Stability (on by default; None with ``stability="off"``): stability_index
-    (B,) the number of unstable directions (0: stable; -1: not assessed: not converged, or for
-    the whole batch ``stability_note``: friction, point-model tendons); lagrangian_error (B,)
+    (B,) the number of unstable directions (0: stable; -1: not assessed: not converged, for
+    the whole batch ``stability_note``: friction, point-model tendons, or a rod whose phases turn
+    too fast even on 16 steps an interval; ``stability_reasons`` says which); lagrangian_error (B,)
     the check of the test (small: trustworthy); stability_margin (B,) [rad] how far the rod is
     from a change of the count (small: near a buckling load; see ``stability_reasons``); with
     "stable" also branch (B,) int8 (0: as solved, 1: the solve landed on an
@@ -136,8 +137,11 @@ class StaticSolution:
         if self.stability_index is None:
             return None
         return ["stable" if i == 0 else f"unstable: {i} directions" if i > 0 else
-                "not assessed: not converged" if not ok else f"not assessed: {self.stability_note}"
-                for i, ok in zip(self.stability_index.tolist(), self.converged.tolist())]
+                "not assessed: not converged" if not ok else f"not assessed: {self.stability_note}" if self.stability_note
+                else "not assessed: the phases turn too fast for the grid (raise nodes)" if np.isnan(margin)
+                else "not assessed: the wires' stiffness is singular here (a bifurcation point)"
+                for i, ok, margin in zip(self.stability_index.tolist(), self.converged.tolist(),
+                                         self.stability_margin.tolist())]
 
     @property
     def tip_position(self) -> np.ndarray:
