@@ -192,7 +192,10 @@ def make_rhs(dtype, model: str, dynamic: bool, rod: str, features: Features):
             curv = wp.length(u)
         tau, g, h = tensions(md, ct, b, t0, E, slot, h_step, curv)
         dp = R * v
-        dR = R * wp.skew(u)
+        dR = mat33(  # R skew(u): row i is (row i of R) x u, without multiplying skew's zeros
+            R[0, 1] * u[2] - R[0, 2] * u[1], R[0, 2] * u[0] - R[0, 0] * u[2], R[0, 0] * u[1] - R[0, 1] * u[0],
+            R[1, 1] * u[2] - R[1, 2] * u[1], R[1, 2] * u[0] - R[1, 0] * u[2], R[1, 0] * u[1] - R[1, 1] * u[0],
+            R[2, 1] * u[2] - R[2, 2] * u[1], R[2, 2] * u[0] - R[2, 0] * u[2], R[2, 0] * u[1] - R[2, 1] * u[0])
         dq = vec3()
         dw = vec3()
         lam_n = vec3()  # body-frame distributed load terms, moved to the left
@@ -201,8 +204,14 @@ def make_rhs(dtype, model: str, dynamic: bool, rod: str, features: Features):
         lam_m = vec3()
         if wp.static(dynamic):
             dq, dw, lam_n, lam_m = inertia_loads(md, sp, b, slot, v, u, q, w, lam_n)
-        dn = R * lam_n
-        dm = R * lam_m - wp.cross(dp, n)
+        if wp.static(dynamic):
+            dn = R * lam_n
+            dm = R * lam_m - wp.cross(dp, n)
+        else:  # statics: no distributed moment, a force only with gravity
+            dn = vec3()
+            if wp.static(features.gravity):
+                dn = R * lam_n
+            dm = -wp.cross(dp, n)
         dv = vec3()
         du = vec3()
         dE = evec()

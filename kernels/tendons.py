@@ -107,6 +107,18 @@ def make_coupled_load(dtype, dynamic: bool, tendons: int, friction: bool, helix:
     tendon_route = make_routes(dtype, dynamic, helix, spline).tendon_route
     tension_of = make_tensions(dtype, dynamic, tendons, friction).tension_of
 
+    routed = helix or spline  # else straight tendons: r' = r'' = 0
+
+    @wp.func
+    def cross_r(a: vec3, r: vec3):
+        """a x r for a routing point r = (x, y, 0) in the cross-section."""
+        return vec3(-a[2] * r[1], a[2] * r[0], a[0] * r[1] - a[1] * r[0])
+
+    @wp.func
+    def r_cross(r: vec3, a: vec3):
+        """r x a for a routing point r = (x, y, 0) in the cross-section."""
+        return vec3(r[1] * a[2], -r[0] * a[2], r[0] * a[1] - r[1] * a[0])
+
     @wp.func
     def coupled_tendon_load(md: Model, ct: Control, b: int, s: dtype, u: vec3, v: vec3, step: int, tau: kvec):
         """The coupled model's distributed tendon load [RW11], f_t = a + A v' + G u' and
@@ -121,9 +133,19 @@ def make_coupled_load(dtype, dynamic: bool, tendons: int, friction: bool, helix:
         y = u x (pb + r') + r'', b_i = r x a_i. Returns A, B, H, a, b and whether a tendon
         pulls here.
         """
-        Am = mat33()  # sum e pb pb^T
+        a00 = zero  # sum e pb pb^T (symmetric: its upper triangle)
+        a01 = zero
+        a02 = zero
+        a11 = zero
+        a12 = zero
+        a22 = zero
+        h00 = zero  # sum e q q^T (symmetric: its upper triangle)
+        h01 = zero
+        h02 = zero
+        h11 = zero
+        h12 = zero
+        h22 = zero
         Bm = mat33()  # sum e q pb^T
-        Hm = mat33()  # sum e q q^T
         W = zero
         Wr = vec3()
         wxx = zero
@@ -136,16 +158,29 @@ def make_coupled_load(dtype, dynamic: bool, tendons: int, friction: bool, helix:
             t = tension_of(ct, b, k, tau)
             if t != zero and step < term_node(md, b, k):  # (a taut displaced tendon's tension may cross 0)
                 r, dr, ddr = tendon_route(md, b, k, s)
-                pb = wp.cross(u, r) + dr + v
+                if wp.static(routed):
+                    pb = cross_r(u, r) + dr + v
+                else:
+                    pb = cross_r(u, r) + v
                 pp = wp.dot(pb, pb)
                 e = t / (pp * wp.sqrt(pp))
                 w = e * pp
-                q = wp.cross(r, pb)
+                q = r_cross(r, pb)
                 epb = e * pb
                 eq = e * q
-                Am += wp.outer(epb, pb)
+                a00 += epb[0] * pb[0]
+                a01 += epb[0] * pb[1]
+                a02 += epb[0] * pb[2]
+                a11 += epb[1] * pb[1]
+                a12 += epb[1] * pb[2]
+                a22 += epb[2] * pb[2]
+                h00 += eq[0] * q[0]
+                h01 += eq[0] * q[1]
+                h02 += eq[0] * q[2]
+                h11 += eq[1] * q[1]
+                h12 += eq[1] * q[2]
+                h22 += eq[2] * q[2]
                 Bm += wp.outer(eq, pb)
-                Hm += wp.outer(eq, q)
                 W += w
                 pulls = 1
                 Wr += w * r
@@ -154,13 +189,16 @@ def make_coupled_load(dtype, dynamic: bool, tendons: int, friction: bool, helix:
                 wxx += wx * r[0]
                 wxy += wx * r[1]
                 wyy += wy * r[1]
-                y = wp.cross(u, pb + dr) + ddr
+                if wp.static(routed):
+                    y = wp.cross(u, pb + dr) + ddr
+                else:
+                    y = wp.cross(u, pb)
                 ai = w * y - wp.dot(pb, y) * epb
                 a_sum += ai
-                b_sum += wp.cross(r, ai)
-        As = wp.diag(vec3(W, W, W)) - Am
+                b_sum += r_cross(r, ai)
+        As = mat33(W - a00, -a01, -a02, -a01, W - a11, -a12, -a02, -a12, W - a22)
         Bs = wp.skew(Wr) - Bm
-        Hs = mat33(wyy, -wxy, zero, -wxy, wxx, zero, zero, zero, wxx + wyy) - Hm
+        Hs = mat33(wyy - h00, -wxy - h01, -h02, -wxy - h01, wxx - h11, -h12, -h02, -h12, wxx + wyy - h22)
         return As, Bs, Hs, a_sum, b_sum, pulls
 
     return SimpleNamespace(coupled_tendon_load=coupled_tendon_load)
