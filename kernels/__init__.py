@@ -22,16 +22,16 @@ family's file and keyed only by what it needs; a feature a scene lacks compiles 
   damped_system                                  inertia.py    strain-rate damping in the (v', u') system
   kirchhoff_solve, cosserat_solve,               rod.py        (v', u') and the tendon load
     coupled_rates, point_rates
-  rhs, node_busy, node_jumps                     rod.py        d/ds of the state; the jumps at a node
+  rhs, node_busy, span_end, node_jumps           rod.py        d/ds of the state; the jumps at a node
   stage_c, stage_w, orthonormalize, orth_error   integration.py  explicit Runge-Kutta, R a rotation
   interval, shoot, tip_residual, Nodes           integration.py  base to tip: the shooting residual
   Newton, begin, update, solve_dense, ...        newton.py     damped (quasi-)Newton per rod
-  totals, column, phases, track, verdict,        jacobi.py     the stability verdict: Jacobi fields
-    asymmetry, the verdict kernel                              of the solution and their phases
+  totals, column, phases, track, sweep,          jacobi.py     the stability verdict: Jacobi fields
+    verdict, asymmetry, the verdict kernel                     of the solution and their phases
   invert, abs_det, symmetric_eigenvalues (6x6,  dense6.py     the verdict's dense algebra
     in a per-thread work array)
   solve / probe / update / finish / begin /      drivers.py    the Warp kernels (one module per
-    evaluate kernels                                           variant and driver)
+    evaluate / jacobian kernels                                variant and driver)
   make_shooting_kernels                          shooting.py   one variant's kernels, for the host
   end_step                                       history.py    BDF-alpha history between steps
 

@@ -188,3 +188,29 @@ def make_evaluate_kernel(dtype, integrator: str, model: str, dynamic: bool, rod:
         tip_R[b] = R_tip
 
     return evaluate_kernel
+
+
+@functools.cache
+def make_jacobian_kernel(dtype, integrator: str, model: str, dynamic: bool, rod: str, features: Features):
+    st, nt, sh, _itr, modules = _parts(dtype, integrator, model, dynamic, rod, features)
+    Model, Control, Step, Newton, Nodes, vecu = st.Model, st.Control, st.Step, nt.Newton, sh.Nodes, nt.vec
+    n_probes = nt.n_probes
+
+    @wp.kernel(module=modules["evaluate"], enable_backward=False)
+    def jacobian_kernel(md: Model, ct: Control, sp: Step, nw: Newton, out: Nodes, x: wp.array(dtype=vecu),
+                        coarse: int, mask: wp.array(dtype=int)):
+        """The finite-difference Jacobian at x[b] into nw.J[b], as a Broyden solve makes its first
+        one (the probes over ``coarse``-interval steps and their base evaluated the same way;
+        coarse 0: the fine grid and the point itself), without a Newton step."""
+        b = wp.tid()
+        if mask[b] == 0:
+            return
+        xb = x[b]
+        for j in range(nw.res.shape[1]):
+            if (j == 0 and coarse != 0) or (j == n_probes and coarse == 0):
+                continue
+            r, _p_tip, _R_tip = sh.shoot(nt.probe_point(xb, j), md, ct, sp, b, 0, coarse, out)
+            nw.res[b, j] = r
+        nw.J[b] = nt.new_jacobian(nw, b, nw.res[b, 0], xb, coarse)
+
+    return jacobian_kernel

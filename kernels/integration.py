@@ -306,11 +306,7 @@ def make_shoot(dtype, integrator: str, model: str, dynamic: bool, rod: str, feat
             tout.store_tensions(md, ct, b, out, t0, E, 0, 0)
         k = int(0)
         while k < n_int:
-            k1 = k + 1
-            while k1 - k < coarse and k1 < n_int:  # over nodes where nothing acts
-                if rf.node_busy(md, b, k1) != 0:
-                    break
-                k1 = k1 + 1
+            k1 = rf.span_end(md, b, k, coarse, n_int)
             s = md.grid[ig, k]
             p, R, n, m, q, w, E = interval(md, ct, sp, b, s, md.grid[ig, k1] - s, p, R, n, m, q, w, t0, E, k, store)
             if store != 0:

@@ -421,11 +421,7 @@ def make_sweep(dtype, integrator: str, model: str, rod: str, features: Features)
         part = int(0)  # noqa: UP018, RUF046
         first = int(1)  # noqa: UP018, RUF046
         while k < n_int:
-            k1 = k + 1
-            while k1 - k < stride and k1 < n_int:  # over nodes where nothing acts
-                if rf.node_busy(md, b, k1) != 0:
-                    break
-                k1 = k1 + 1
+            k1 = rf.span_end(md, b, k, stride, n_int)
             s = md.grid[ig, k]
             ds = (md.grid[ig, k1] - s) / dtype(parts)
             at_node = wp.where(part + 1 == parts, 1, 0)

@@ -323,5 +323,6 @@ def make_newton(dtype, nu: int, central: bool):
     pr = make_probes(dtype, nu, central)
     n_probes, width = probe_counts(nu, central)
     return SimpleNamespace(Newton=st.Newton, vec=st.vec, mat=st.mat, n_probes=n_probes, width=width, nu=nu,
-                           probe_point=pr.probe_point, solve_dense=make_dense_solve(dtype, nu).solve_dense,
+                           probe_point=pr.probe_point, new_jacobian=pr.new_jacobian,
+                           solve_dense=make_dense_solve(dtype, nu).solve_dense,
                            update=make_update(dtype, nu, central).update, begin=st.begin, fd_step=pr.fd_step)

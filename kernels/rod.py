@@ -11,6 +11,7 @@ tendon states the tendon states E (kernels/tendons.py).
   point_rates          (v', u') of the point model (needed only for the tendon states)
   rhs                  d/ds of the state between nodes
   node_busy            whether anything acts at a node
+  span_end             the end of a step over several intervals (to the next busy node)
   node_jumps           the jumps of n, m (and E) at a node: tendon ends, point forces, kinks
 
 ``make_rod_funcs(dtype, model, dynamic, rod, features)`` returns them for one precision, one
@@ -303,7 +304,18 @@ def make_node_jumps(dtype, model: str, dynamic: bool, rod: str, features: Featur
                 law.store_slot(sp, b, slot_post, v3, u3, q, w, vec3(), vec3())
         return n, m, E2
 
-    return SimpleNamespace(node_busy=node_busy, node_jumps=node_jumps)
+    @wp.func
+    def span_end(md: Model, b: int, k: int, stride: int, n_int: int):
+        """The node a step from node k ends at: up to ``stride`` intervals on, stopping at the
+        first node something acts on (stride <= 1: k + 1)."""
+        k1 = k + 1
+        while k1 - k < stride and k1 < n_int:  # over nodes where nothing acts
+            if node_busy(md, b, k1) != 0:
+                break
+            k1 = k1 + 1
+        return k1
+
+    return SimpleNamespace(node_busy=node_busy, node_jumps=node_jumps, span_end=span_end)
 
 
 @functools.cache
@@ -324,6 +336,6 @@ def make_rod_funcs(dtype, model: str, dynamic: bool, rod: str = "cosserat", feat
     return SimpleNamespace(
         vec3=wp.types.vector(3, dtype), mat33=wp.types.matrix((3, 3), dtype), Model=st.Model, Control=st.Control,
         Step=st.Step, row=make_rows(dtype, dynamic).row, rhs=make_rhs(dtype, model, dynamic, rod, features).rhs,
-        node_jumps=jumps.node_jumps, node_busy=jumps.node_busy,
+        node_jumps=jumps.node_jumps, node_busy=jumps.node_busy, span_end=jumps.span_end,
         base_tensions=make_displacement(dtype, dynamic, features.tendons, features.displaced).base_tensions,
         tstate=features.tendons > 0, K=features.tendons)

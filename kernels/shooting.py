@@ -11,6 +11,7 @@ from types import SimpleNamespace
 from .drivers import (
     make_evaluate_kernel,
     make_fused_kernel,
+    make_jacobian_kernel,
     make_probe_kernels,
     module_names,
 )
@@ -47,6 +48,7 @@ def make_shooting_kernels(dtype, integrator: str, model: str, dynamic: bool = Fa
     verdict = None if dynamic else make_verdict_kernel(dtype, integrator, model, rod, features)
     return SimpleNamespace(solve=make_fused_kernel(*variant), probe=probes.probe, update=probes.update,
                            finish=probes.finish, begin=probes.begin, evaluate=make_evaluate_kernel(*variant),
+                           jacobian=None if dynamic else make_jacobian_kernel(*variant),
                            verdict=verdict and verdict.kernel, Fields=verdict and verdict.Fields,
                            Model=rf.Model, Control=rf.Control, Step=rf.Step, Nodes=make_shoot(*variant).Nodes,
                            Newton=nt.Newton, vec3=rf.vec3, mat33=rf.mat33, vecu=nt.vec, matu=nt.mat,

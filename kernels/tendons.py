@@ -95,6 +95,22 @@ def make_routes(dtype, dynamic: bool, helix: bool, spline: bool):
 
 
 @functools.cache
+def make_planar_crosses(dtype):
+    """a x r and r x a for a routing point r = (x, y, 0) in the cross-section, without its zero."""
+    vec3 = wp.types.vector(3, dtype)
+
+    @wp.func
+    def cross_r(a: vec3, r: vec3):
+        return vec3(-a[2] * r[1], a[2] * r[0], a[0] * r[1] - a[1] * r[0])
+
+    @wp.func
+    def r_cross(r: vec3, a: vec3):
+        return vec3(r[1] * a[2], -r[0] * a[2], r[0] * a[1] - r[1] * a[0])
+
+    return cross_r, r_cross
+
+
+@functools.cache
 def make_coupled_load(dtype, dynamic: bool, tendons: int, friction: bool, helix: bool, spline: bool):
     """The coupled model's distributed tendon load (see ``coupled_tendon_load``)."""
     vec3 = wp.types.vector(3, dtype)
@@ -108,16 +124,7 @@ def make_coupled_load(dtype, dynamic: bool, tendons: int, friction: bool, helix:
     tension_of = make_tensions(dtype, dynamic, tendons, friction).tension_of
 
     routed = helix or spline  # else straight tendons: r' = r'' = 0
-
-    @wp.func
-    def cross_r(a: vec3, r: vec3):
-        """a x r for a routing point r = (x, y, 0) in the cross-section."""
-        return vec3(-a[2] * r[1], a[2] * r[0], a[0] * r[1] - a[1] * r[0])
-
-    @wp.func
-    def r_cross(r: vec3, a: vec3):
-        """r x a for a routing point r = (x, y, 0) in the cross-section."""
-        return vec3(r[1] * a[2], -r[0] * a[2], r[0] * a[1] - r[1] * a[0])
+    cross_r, r_cross = make_planar_crosses(dtype)
 
     @wp.func
     def coupled_tendon_load(md: Model, ct: Control, b: int, s: dtype, u: vec3, v: vec3, step: int, tau: kvec):
@@ -133,18 +140,7 @@ def make_coupled_load(dtype, dynamic: bool, tendons: int, friction: bool, helix:
         y = u x (pb + r') + r'', b_i = r x a_i. Returns A, B, H, a, b and whether a tendon
         pulls here.
         """
-        a00 = zero  # sum e pb pb^T (symmetric: its upper triangle)
-        a01 = zero
-        a02 = zero
-        a11 = zero
-        a12 = zero
-        a22 = zero
-        h00 = zero  # sum e q q^T (symmetric: its upper triangle)
-        h01 = zero
-        h02 = zero
-        h11 = zero
-        h12 = zero
-        h22 = zero
+        ad, ao, hd, ho = vec3(), vec3(), vec3(), vec3()  # sums e pb pb^T, e q q^T: diagonals, (01, 02, 12)
         Bm = mat33()  # sum e q pb^T
         W = zero
         Wr = vec3()
@@ -168,18 +164,10 @@ def make_coupled_load(dtype, dynamic: bool, tendons: int, friction: bool, helix:
                 q = r_cross(r, pb)
                 epb = e * pb
                 eq = e * q
-                a00 += epb[0] * pb[0]
-                a01 += epb[0] * pb[1]
-                a02 += epb[0] * pb[2]
-                a11 += epb[1] * pb[1]
-                a12 += epb[1] * pb[2]
-                a22 += epb[2] * pb[2]
-                h00 += eq[0] * q[0]
-                h01 += eq[0] * q[1]
-                h02 += eq[0] * q[2]
-                h11 += eq[1] * q[1]
-                h12 += eq[1] * q[2]
-                h22 += eq[2] * q[2]
+                ad += wp.cw_mul(epb, pb)
+                ao += vec3(epb[0] * pb[1], epb[0] * pb[2], epb[1] * pb[2])
+                hd += wp.cw_mul(eq, q)
+                ho += vec3(eq[0] * q[1], eq[0] * q[2], eq[1] * q[2])
                 Bm += wp.outer(eq, pb)
                 W += w
                 pulls = 1
@@ -196,9 +184,10 @@ def make_coupled_load(dtype, dynamic: bool, tendons: int, friction: bool, helix:
                 ai = w * y - wp.dot(pb, y) * epb
                 a_sum += ai
                 b_sum += r_cross(r, ai)
-        As = mat33(W - a00, -a01, -a02, -a01, W - a11, -a12, -a02, -a12, W - a22)
+        As = mat33(W - ad[0], -ao[0], -ao[1], -ao[0], W - ad[1], -ao[2], -ao[1], -ao[2], W - ad[2])
         Bs = wp.skew(Wr) - Bm
-        Hs = mat33(wyy - h00, -wxy - h01, -h02, -wxy - h01, wxx - h11, -h12, -h02, -h12, wxx + wyy - h22)
+        Hs = mat33(wyy - hd[0], -wxy - ho[0], -ho[1], -wxy - ho[0], wxx - hd[1], -ho[2], -ho[1], -ho[2],
+                   wxx + wyy - hd[2])
         return As, Bs, Hs, a_sum, b_sum, pulls
 
     return SimpleNamespace(coupled_tendon_load=coupled_tendon_load)

@@ -61,6 +61,15 @@ def verdict_strides(n_int: int, integrator: str, dynamic: bool) -> tuple[int, ..
     return (2, 1) if not dynamic and integrator == "rk4" and n_int >= COARSE_MIN_NODES else (1,)
 
 
+def first_jacobian(sh: Shooting, x: np.ndarray, mask: np.ndarray) -> None:
+    """sh.newton.J of the rods in ``mask`` (b,) bool: the finite-difference Jacobian at the scaled
+    unknowns x (b, nu), as a Broyden solve makes its first one (statics), without a step."""
+    sh.host(sh.x_in).put(x)
+    sh.host(sh.mask).put(mask.astype(np.int32))
+    wp.launch(sh.kern.jacobian, dim=sh.b, inputs=[sh.model, sh.control, sh.step, sh.newton, sh.nodes, sh.x_in,
+                                                  sh.coarse_jacobian, sh.mask], device=sh.device)
+
+
 def _fused(driver: str | None, device) -> bool:
     return (driver or ("probes" if device.is_cuda else "fused")) == "fused"
 
@@ -86,7 +95,8 @@ def _needs_compile(module, device, block_dim: int) -> bool:
 
 def _load_solver_kernels(k, fused: bool, evaluate: bool, device) -> None:
     """Compile (or load) the kernels a Shooting of variant k runs: its Newton driver, and with
-    ``evaluate`` the evaluation of a known state (dynamics; the probes of sensitivities)."""
+    ``evaluate`` the evaluation module (dynamics: a known state; statics: the unloaded rod's
+    Jacobian, the probes of sensitivities and the stability verdict)."""
     _load_modules((k.solve if fused else k.probe,) + ((k.evaluate,) if evaluate else ()), device)
 
 
@@ -122,10 +132,9 @@ def load_kernels(robot: Robot, options, device=None, *, dynamic: bool = False) -
         variants.append((False, scene_features(robot, tendon, options.specialize, options.kink_loads, "reference")))
     if dynamic:
         variants.append((True, scene_features(robot, tendon, options.specialize, options.kink_loads)))
-    probes = options.sensitivities or options.stability != "off"  # statics evaluates probes one by one
     for dyn, features in variants:
         k = make_shooting_kernels(wdtype, options.integrator, options.model, dyn, options.rod, features)
-        _load_solver_kernels(k, _fused(options.driver, dev), dyn or probes, dev)
+        _load_solver_kernels(k, _fused(options.driver, dev), True, dev)
     if dynamic:
         make_history_kernels(wdtype).end_step.module.load(dev, 1 if dev.is_cpu else 256)
     return time.perf_counter() - t0
@@ -169,7 +178,7 @@ class Shooting:
         self.verdict_strides = verdict_strides(n1 - 1, integrator, dynamic)
         self.coarse_stride = coarse_stride(n1 - 1, integrator, dynamic)
         self.coarse_jacobian = self.coarse_stride
-        _load_solver_kernels(k, self.loop.fused, dynamic, device)  # before threads race to it
+        _load_solver_kernels(k, self.loop.fused, True, device)  # before threads race to it
 
     def host(self, arr: wp.array) -> Mirror:
         """The Mirror of one of this problem's own arrays (made on first use; arrays that a caller

@@ -22,7 +22,7 @@ import warp as wp
 from tdcr_warp.core.build import Tables
 from tdcr_warp.core.homotopy import continuation_steps, load_continuation
 from tdcr_warp.core.parallel import parallel, split
-from tdcr_warp.core.solver import Shooting
+from tdcr_warp.core.solver import Shooting, first_jacobian
 from tdcr_warp.kernels import layout
 from tdcr_warp.model.options import StaticOptions, describe_status
 from tdcr_warp.model.robot import InputError, Robot, check_command, check_slip, real_array, require_memory
@@ -253,6 +253,7 @@ class StaticProblem:
         self.assessor = Assessor(robot, self.tables, opts)
         self.lock = threading.Lock()
         self._reference = None
+        self._unloaded: tuple | None = None  # the rods' unloaded Jacobians and their cost (unloaded_jacobians)
 
     def reference_lengths(self) -> np.ndarray:
         """(B, K) the unstretched length of every tendon at the reference state (each tendon in
@@ -302,9 +303,10 @@ class StaticProblem:
         tau, avail = self.command(tau, displacements)
         slip, profile = _slip_memory(tables, self.solvers[0].n_slots, tau, avail, slip, history)
         x0, J0 = self._first_guess(tau, avail, initial, history)
+        J0, spent = (J0, None) if (initial or history) is not None else unloaded_jacobians(self, avail)
         newton = {"tol": opts.tolerance, "max_iter": opts.max_iter, "max_step": opts.max_step,
                   "broyden": opts.jacobian == "broyden"}
-        job = _Job(tau=tau, avail=avail, slip=slip, profile=profile, x0=x0, J0=J0,
+        job = _Job(tau=tau, avail=avail, slip=slip, profile=profile, x0=x0, J0=J0, spent=spent,
                    warm=(initial or history) is not None, newton=newton, ptables=ptables,
                    linear=sensitivities or bool(parameters), stability=stability)
         if job.linear or stability != "off":
@@ -354,6 +356,9 @@ class StaticProblem:
             settle_slack(sh, taut, self.disp, self.j_of, newton)
         if job.profile is not None:
             self._stick_slip(sh, job.slip[lo:hi], job.profile[lo:hi], x0, taut, newton)
+        if job.spent is not None:  # the integrations of the unloaded Jacobians count, where they were made
+            it, sn = sh.counts()
+            sh.set_counts(it, sn + job.spent[lo:hi])
         res = sh.results()
         if job.linear or job.stability != "off":
             res |= self.assessor.assess(sh, lo, hi, job.tau[lo:hi], taut, res, job.ptables, job.linear, job.stability)
@@ -381,9 +386,10 @@ class StaticProblem:
 class _Job:
     """One solve of a StaticProblem's batch, as every chunk takes it: tensions tau (B, K) [N], the
     displaced tendons' lengths avail (B, K) [m] or None, slip (B, K) and the stick-slip profile or
-    None (friction), the start x0 (B, nu) and Jacobian J0 or None, whether the start is warm, the
-    Newton settings, the parameters' tables and what to add (``linear``: sensitivities; the
-    stability verdict unless ``stability`` is "off")."""
+    None (friction), the start x0 (B, nu) and Jacobian J0 or None, the integrations spent (B,) on
+    J0 in this solve or None, whether the start is warm, the Newton settings, the parameters'
+    tables and what to add (``linear``: sensitivities; the stability verdict unless ``stability``
+    is "off")."""
 
     tau: np.ndarray
     avail: np.ndarray | None
@@ -391,6 +397,7 @@ class _Job:
     profile: np.ndarray | None
     x0: np.ndarray
     J0: np.ndarray | None
+    spent: np.ndarray | None
     warm: bool
     newton: dict
     ptables: list
@@ -419,6 +426,41 @@ def _slip_memory(tables: Tables, n_slots: int, tau: np.ndarray, avail: np.ndarra
     now = tau if avail is None else avail
     moved = np.where(np.broadcast_to(tables.tmode[0] >= 0, (B, K)), was - now, now - was)
     return np.where(moved >= 0, 1.0, -1.0), history.tension_slots
+
+
+def unloaded_jacobians(problem: StaticProblem, avail: np.ndarray | None) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """The first Jacobians of a problem's straight-started Broyden solve (``unloaded_jacobian``,
+    every chunk), made on its first such solve and kept, and the integrations spent on them now
+    (B,) or None; (None, None) for plain Newton and displacement control (``avail``)."""
+    if problem.opts.jacobian != "broyden" or avail is not None:
+        return None, None
+    if problem._unloaded is not None:
+        return problem._unloaded[0], None
+    x_ref = problem.start(np.zeros((problem.B, problem.tables.tendon.shape[1])), None)
+    parts = [unloaded_jacobian(sh, problem.tables, x_ref[lo:hi]) for sh, (lo, hi) in zip(problem.solvers, problem.chunks)]
+    problem._unloaded = (np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts]))
+    return problem._unloaded
+
+
+def unloaded_jacobian(sh: Shooting, tables: Tables, x_ref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The first Jacobian of a straight-started Broyden solve (not for displacement control, whose
+    start is the rod's own): each rod's unloaded Jacobian, the
+    finite-difference Jacobian at the straight start x_ref (b, nu) of a zero command (probes over
+    long steps, core/solver.py first_jacobian). It depends on the rod alone, not on its command,
+    its neighbours or the chunking; a robot with one row per table makes it for one rod and
+    shares it. Measured (experiments/bench_integrations.py): iterations as with each rod's own
+    first Jacobian at its own start or fewer (the report robot at 0-30 N: 3.99 -> 3.89), and
+    the 7 probes of a first Jacobian gone from every solve after the first. A rod whose unloaded
+    Jacobian is not finite gets it anyway: its first step fails and it rebuilds its own. Returns
+    (b, nu, nu) and the integrations spent (b,): nu + 1 on the rods it was made for."""
+    shared = all(getattr(tables, f).shape[0] == 1 for f in ("rod", "dyn", "tendon", "grid", "term_node", "pforce",
+                                                            "pnode", "tendon_len"))
+    mask = np.zeros(sh.b, dtype=bool)
+    mask[:1 if shared else None] = True
+    sh.set_command(np.zeros((sh.b, tables.tendon.shape[1])), None)
+    first_jacobian(sh, x_ref, mask)
+    J = sh.host(sh.newton.J).get(np.float64)
+    return (np.broadcast_to(J[0], J.shape) if shared else J.copy()), np.where(mask, tables.nu + 1, 0)
 
 
 def _solution(tables: Tables, opts: StaticOptions, out: dict, job: _Job, parameters: tuple,
