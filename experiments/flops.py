@@ -14,8 +14,9 @@ stage; a runtime branch counts as taken except where the report robot does not t
 tendon is slack on an interval, ``pulls == 0``; the tip node is busy, and no tendon goes on past it). Operations
 the table does not know are listed (they would be missed, not guessed).
 
-Per solve: the integrations a solve spent (StaticSolution.integrations), of which the 7 probes
-of a first Jacobian run over double steps at N >= 16 (today's rule; ``--coarse``) at about half
+Per solve: the integrations a solve spent (StaticSolution.integrations), of which, where the solve
+made a first Jacobian (since the robot's unloaded Jacobian is kept, only the first solve of a
+problem does), the 7 probes run over double steps at N >= 16 (``--coarse``) at about half
 the intervals, times the flops of an integration (N intervals, the tip's node loads and the
 residual), plus Newton's linear algebra (a 6x6 elimination and a Broyden update per iteration, a
 Jacobian from its probes). Achieved: that times the rods/s of a B = 4096 solve on one thread
@@ -213,8 +214,9 @@ def per_solve(c: dict, nodes: int, integrations: float, iterations: float, coars
     """Flops of an average rod's solve."""
     full = c["interval"] * nodes + c["node_jumps_tip"] + c["tip_residual"]
     half = c["interval"] * (nodes + 1) // 2 + c["node_jumps_tip"] + c["tip_residual"]
-    n_coarse = coarse if nodes >= 16 else 0
-    newton = iterations * (c["solve_dense"] + c["take_point"]) + c["new_jacobian"]
+    probed = integrations >= iterations + coarse  # a first Jacobian made in the solve (not the robot's kept one)
+    n_coarse = coarse if nodes >= 16 and probed else 0
+    newton = iterations * (c["solve_dense"] + c["take_point"]) + (c["new_jacobian"] if probed else 0)
     return (integrations - n_coarse) * full + n_coarse * half + newton
 
 

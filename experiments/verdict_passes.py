@@ -4,11 +4,11 @@ keeps is ever wrong.
 
 Each family (the report robot at working and at heavy tensions; columns under dead loads around
 the Euler loads, both rod models; helical tendons; a precurved rod; with gravity) is solved once,
-then its verdict is made by one pass alone at each stride of the cascade (double steps 2, the
-full grid 1, -m: m steps an interval) and by the full grid of a 4x finer solve (N x 4) as the
-reference. Per family, N and pass: the largest |margin - reference margin| [rad], the largest
-phase move between steps, the rods the trust rule keeps, and among them how many counts differ
-from the reference (must be 0).
+then its verdict is made by one pass alone at each of the first three passes of the cascade
+(stability.passes: double steps 2, the full grid 1, -m: m steps an interval) and, as the reference, by 16 steps an interval on the same
+solution (the fields of the same equilibrium, integrated 16x finer). Per family, N and pass: the
+largest |margin - reference margin| [rad], the largest phase move between steps, the rods the trust
+rule keeps, and among them how many counts differ from the reference (must be 0).
 
     python experiments/verdict_passes.py [--nodes 20 40 60] [--batch 256] [--smoke] [--out verdict_passes.json]
 """
@@ -91,9 +91,9 @@ def main(argv: list[str] | None = None) -> int:
           "| reference's max move [rad] |")
     print("|---|---:|---:|---:|---:|---:|---:|---:|")
     for nodes in args.nodes:
-        strides = solver.verdict_strides(nodes, "rk4", False) + tuple(-m for m in stability.SUBSTEPS[:2])
+        strides = stability.passes(solver.verdict_strides(nodes, "rk4", False), nodes)[:3]
         for name, (robot, tau, rod) in families(args.batch, np.random.default_rng(nodes)).items():
-            fine = one_pass(robot, tau, 4 * nodes, rod, 1)
+            fine = one_pass(robot, tau, nodes, rod, -16)
             for stride in strides:
                 got = one_pass(robot, tau, nodes, rod, stride)
                 ok = fine["ok"] & got["ok"] & (fine["index"] >= 0)

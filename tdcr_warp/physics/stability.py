@@ -57,12 +57,24 @@ NEUTRAL = 1e-6  # rad: a tip phase this close to an odd multiple of pi/2 is a ze
 # moved 1.2-1.6 rad, experiments/verdict_passes.py) and, for double steps, a margin of at least
 # REFINE_MARGIN with fields Lagrangian to within LAG_TRUST times it (their asymmetry measures the
 # integration error, and the phases' with it). A rod trusted by no pass is not assessed (index -1,
-# margin NaN: "the phases turn too fast for the grid").
+# margin NaN: "the phases turn too fast for the grid"). Small moves do not show a phase that turned
+# by about pi in a step, which only few steps across the rod allow: a pass takes at least MIN_STEPS
+# (measured against 16 steps an interval on the same solution: with 4 steps across a rod loaded to
+# 12 P_cr, 15 of 126 trusted counts were wrong, with 8 steps none, at N = 4, 8 and 20).
 REFINE_MARGIN = 1e-3  # rad: the double steps' margin
 LAG_TRUST = 0.1
 JUMP_MAX = 0.25 * np.pi  # rad
 SUBSTEPS = (2, 4, 8, 16)  # steps an interval of the passes after the full grid
+MIN_STEPS = 8  # steps across the rod of a pass at least
 STRIDE_ARG = 8  # the position of ``stride`` among the verdict kernel's arguments
+
+
+def passes(strides: tuple[int, ...], n_int: int) -> tuple[int, ...]:
+    """The verdict's passes, coarse to fine, on a grid of n_int intervals: ``strides`` (the grid's,
+    tdcr_warp.core.solver.verdict_strides) then SUBSTEPS steps an interval (-m), those that take at
+    least MIN_STEPS steps across the rod."""
+    steps = {s: (n_int + s - 1) // s if s > 0 else -s * n_int for s in strides + tuple(-m for m in SUBSTEPS)}
+    return tuple(s for s, n in steps.items() if n >= MIN_STEPS)
 
 
 class Verdict:
@@ -87,7 +99,7 @@ class Verdict:
         self.jumps = wp.zeros(b, dtype=wdt, device=dev)
         names = ("mask", "index", "margin", "lag", "jac", "jumps")
         self.host = {name: Mirror(getattr(self, name), np.float64) for name in names}
-        self.strides = strides
+        self.strides = passes(strides, tables.grid.shape[1] - 1)
         self.args = [sh.model, sh.control, sh.step, sh.newton.x, self.mask, wdt(PROBE_REL[precision]),
                      wdt(AXIAL_STRAIN[precision]), wdt(NEUTRAL), 1, fd, self.jac, self.index,
                      self.margin, self.lag, self.jumps]
@@ -112,7 +124,7 @@ class Verdict:
         ``unknowns_jacobian`` at x* (forward differences, over the steps of the pass that decided).
         taut (b, K) or None: the taut displaced tendons (the wires' correction, ``wires_stabilised``)."""
         todo = converged.astype(bool)
-        for stride in self.strides + tuple(-m for m in SUBSTEPS):
+        for stride in self.strides:
             todo = self._run(todo, stride)
             if not todo.any():
                 break
