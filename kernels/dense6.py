@@ -186,14 +186,10 @@ def make_eigen(dtype):
                 hi = hi - 1
             else:
                 lo = hi - 1  # the unreduced block ending at hi starts after the next negligible e
-                searching = int(1)  # noqa: UP018, RUF046
-                while searching == 1:
-                    if lo == 0:  # noqa: SIM114 (no e_(lo - 1) to read at lo = 0)
-                        searching = 0
-                    elif negligible(wk, b, s, lo - 1):
-                        searching = 0
-                    else:
-                        lo = lo - 1
+                while lo > 0:
+                    if negligible(wk, b, s, lo - 1):
+                        break
+                    lo = lo - 1
                 qr_step(wk, b, s, lo, hi)
                 steps = steps + 1
         ev = vec6()

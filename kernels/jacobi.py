@@ -213,15 +213,6 @@ def make_tracking(dtype):
             used_new = used_new | (1 << bj)
         return nxt, lift, jump
 
-    @wp.func
-    def start(phi: vec6):
-        """The lifts at the first node (the phases leave 0 at the clamp) and the largest."""
-        lift = vec6()
-        jump = dtype(0.0)
-        for i in range(6):
-            lift[i] = wrap(phi[i])
-            jump = wp.max(jump, wp.abs(lift[i]))
-        return lift, jump
 
     @wp.func
     def verdict(lift: vec6, neutral: dtype):
@@ -251,7 +242,7 @@ def make_tracking(dtype):
                 nv = nv + wk[b, V_SLOT, i, j] * wk[b, V_SLOT, i, j]
         return wp.sqrt(a), wp.max(nu, nv)
 
-    return SimpleNamespace(track=track, start=start, verdict=verdict, asymmetry=asymmetry)
+    return SimpleNamespace(track=track, verdict=verdict, asymmetry=asymmetry)
 
 
 @functools.cache
@@ -411,7 +402,7 @@ def make_sweep(dtype, integrator: str, model: str, rod: str, features: Features)
         """stride >= 2: up to ``stride`` intervals a step, stopping at every node something acts
         on; 1: the full grid; <= -2: -stride steps an interval."""
         n_int = md.grid.shape[1] - 1
-        lift = vec6()
+        lift = vec6()  # the phases leave 0 at the clamp
         cur = vec6()
         beta = zero
         jump = zero
@@ -419,7 +410,6 @@ def make_sweep(dtype, integrator: str, model: str, rod: str, features: Features)
         parts = wp.max(-stride, 1)  # steps per interval
         k = int(0)  # noqa: UP018, RUF046 (a dynamic variable for Warp)
         part = int(0)  # noqa: UP018, RUF046
-        first = int(1)  # noqa: UP018, RUF046
         while k < n_int:
             k1 = rf.span_end(md, b, k, stride, n_int)
             s = md.grid[ig, k]
@@ -428,13 +418,7 @@ def make_sweep(dtype, integrator: str, model: str, rod: str, features: Features)
             advance(md, ct, sp, fd, b, x0, h, sc, colscale, k, s + dtype(part) * ds,
                     wp.where(at_node == 1, md.grid[ig, k1], s + dtype(part + 1) * ds), k1, at_node)
             phi, beta = ch.phases(fd.wk, b, beta)
-            moved = zero
-            if first == 1:
-                lift, moved = tk.start(phi)
-                cur = phi
-                first = 0
-            else:
-                cur, lift, moved = tk.track(cur, lift, phi)
+            cur, lift, moved = tk.track(cur, lift, phi)
             jump = wp.max(jump, moved)
             part = part + 1
             if at_node == 1:

@@ -60,21 +60,24 @@ def test_replay_sees_struct_fields_and_repacks_changed_arguments():
     assert np.array_equal(outs[0].numpy(), -3.5 * np.linspace(1.0, 2.0, n) + 0.25)
 
 
-def test_first_probe_announces_a_compile(monkeypatch, capsys):
-    """The evaluation kernel loaded lazily by the first probe (sensitivities, the stability
-    verdict, the controller's linearisation) says so on stderr when it compiles, as the solver's
-    kernels do (core/solver.py set_compile_notice)."""
+def test_loading_the_evaluation_kernels_announces_a_compile(monkeypatch, capsys):
+    """The evaluation module (the unloaded Jacobian, sensitivities, the stability verdict, the
+    controller's linearisation), loaded with the solver's kernels when a problem is made, says so on
+    stderr when it compiles, as the solver's kernels do (core/solver.py set_compile_notice)."""
     from tdcr_warp.core import solver
 
-    problem = StaticProblem(report_robot(), 1, tw.StaticOptions(nodes=8, stability="off"), wp.get_device("cpu"))
-    capsys.readouterr()
+    loaded = []
+    real_load = solver._load_modules
+    monkeypatch.setattr(solver, "_load_modules", lambda kernels, device: loaded.extend(
+        k.module.name for k in kernels) or real_load(kernels, device))
     monkeypatch.setattr(solver, "_needs_compile", lambda *args: True)  # as on an empty kernel cache
-    problem.solvers[0].probe(np.zeros((1, 6)))
+    capsys.readouterr()
+    StaticProblem(report_robot(), 1, tw.StaticOptions(nodes=8, stability="off"), wp.get_device("cpu"))
+    assert any("_evaluate_" in name for name in loaded)
     assert "tdcr-warp: compiling kernels for cpu" in capsys.readouterr().err
     solver.set_compile_notice(False)
     try:
-        StaticProblem(report_robot(), 1, tw.StaticOptions(nodes=8, stability="off"), wp.get_device("cpu")
-                      ).solvers[0].probe(np.zeros((1, 6)))
+        StaticProblem(report_robot(), 1, tw.StaticOptions(nodes=8, stability="off"), wp.get_device("cpu"))
         assert capsys.readouterr().err == ""
     finally:
         solver.set_compile_notice(True)

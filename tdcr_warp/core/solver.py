@@ -93,11 +93,12 @@ def _needs_compile(module, device, block_dim: int) -> bool:
         return False
 
 
-def _load_solver_kernels(k, fused: bool, evaluate: bool, device) -> None:
-    """Compile (or load) the kernels a Shooting of variant k runs: its Newton driver, and with
-    ``evaluate`` the evaluation module (dynamics: a known state; statics: the unloaded rod's
-    Jacobian, the probes of sensitivities and the stability verdict)."""
-    _load_modules((k.solve if fused else k.probe,) + ((k.evaluate,) if evaluate else ()), device)
+def _load_solver_kernels(k, fused: bool, device) -> None:
+    """Compile (or load) the kernels a Shooting of variant k runs: its Newton driver and the
+    evaluation module (dynamics: a known state; statics: the unloaded rod's Jacobian, the probes of
+    sensitivities and the stability verdict). Loaded before threads share the problem: two threads
+    loading one module at once can unload the code the other runs (a crash seen in threaded sweeps)."""
+    _load_modules((k.solve if fused else k.probe, k.evaluate), device)
 
 
 def _load_modules(kernels: tuple, device) -> None:
@@ -134,7 +135,7 @@ def load_kernels(robot: Robot, options, device=None, *, dynamic: bool = False) -
         variants.append((True, scene_features(robot, tendon, options.specialize, options.kink_loads)))
     for dyn, features in variants:
         k = make_shooting_kernels(wdtype, options.integrator, options.model, dyn, options.rod, features)
-        _load_solver_kernels(k, _fused(options.driver, dev), True, dev)
+        _load_solver_kernels(k, _fused(options.driver, dev), dev)
     if dynamic:
         make_history_kernels(wdtype).end_step.module.load(dev, 1 if dev.is_cpu else 256)
     return time.perf_counter() - t0
@@ -178,7 +179,7 @@ class Shooting:
         self.verdict_strides = verdict_strides(n1 - 1, integrator, dynamic)
         self.coarse_stride = coarse_stride(n1 - 1, integrator, dynamic)
         self.coarse_jacobian = self.coarse_stride
-        _load_solver_kernels(k, self.loop.fused, True, device)  # before threads race to it
+        _load_solver_kernels(k, self.loop.fused, device)  # before threads race to it
 
     def host(self, arr: wp.array) -> Mirror:
         """The Mirror of one of this problem's own arrays (made on first use; arrays that a caller
@@ -355,18 +356,9 @@ class Probes:
         return (wp.zeros(sh.b, dtype=k.vecu, device=d), wp.zeros(sh.b, dtype=k.vec3, device=d),
                 wp.zeros(sh.b, dtype=k.mat33, device=d))
 
-    def load(self) -> None:
-        """Load the evaluation kernel's module (the probes', and the stability verdict's; a compile
-        says so on stderr, as the solver's do). Call it before threads share the problem: two
-        threads loading one module at once can unload the code the other runs (a crash seen in
-        threaded sweeps with the verdict on)."""
-        _load_modules((self.sh.kern.evaluate,), self.sh.device)
-
     @functools.cached_property
     def nodes(self):
-        """The shapes of a probe; made with the first probe, which also loads the evaluation
-        kernel (once per Shooting, not per probe)."""
-        self.load()
+        """The shapes of a probe; made with the first probe (once per Shooting, not per probe)."""
         sh = self.sh
         return make_state(sh.kern, sh.dev, sh.b, sh.n1, sh.dynamic)
 

@@ -303,14 +303,12 @@ class StaticProblem:
         tau, avail = self.command(tau, displacements)
         slip, profile = _slip_memory(tables, self.solvers[0].n_slots, tau, avail, slip, history)
         x0, J0 = self._first_guess(tau, avail, initial, history)
-        J0, spent = (J0, None) if (initial or history) is not None else unloaded_jacobians(self, avail)
+        warm = (initial or history) is not None
+        J0, spent = (J0, None) if warm else unloaded_jacobians(self, avail)
         newton = {"tol": opts.tolerance, "max_iter": opts.max_iter, "max_step": opts.max_step,
                   "broyden": opts.jacobian == "broyden"}
-        job = _Job(tau=tau, avail=avail, slip=slip, profile=profile, x0=x0, J0=J0, spent=spent,
-                   warm=(initial or history) is not None, newton=newton, ptables=ptables,
-                   linear=sensitivities or bool(parameters), stability=stability)
-        if job.linear or stability != "off":
-            self.solvers[0].probe.load()  # once, before the chunks' threads
+        job = _Job(tau=tau, avail=avail, slip=slip, profile=profile, x0=x0, J0=J0, spent=spent, warm=warm,
+                   newton=newton, ptables=ptables, linear=sensitivities or bool(parameters), stability=stability)
         parts = parallel(lambda i: self._solve_chunk(i, job), list(range(len(self.chunks))))
         out = parts[0] if len(parts) == 1 else {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
         return _solution(tables, opts, out, job, tuple(parameters), self.assessor.unassessed)
@@ -429,38 +427,42 @@ def _slip_memory(tables: Tables, n_slots: int, tau: np.ndarray, avail: np.ndarra
 
 
 def unloaded_jacobians(problem: StaticProblem, avail: np.ndarray | None) -> tuple[np.ndarray | None, np.ndarray | None]:
-    """The first Jacobians of a problem's straight-started Broyden solve (``unloaded_jacobian``,
-    every chunk), made on its first such solve and kept, and the integrations spent on them now
-    (B,) or None; (None, None) for plain Newton and displacement control (``avail``)."""
+    """The first Jacobians of a problem's straight-started Broyden solve (``unloaded_jacobian``),
+    made on its first such solve and kept, and the integrations spent on them now (B,) or None;
+    (None, None) for plain Newton and displacement control (``avail``: its start is the rod's own).
+    Where every rod has the same robot (the batch differs in its commands only) it is made once,
+    for the first rod, and shared; else each chunk makes its rods'."""
     if problem.opts.jacobian != "broyden" or avail is not None:
         return None, None
-    if problem._unloaded is not None:
-        return problem._unloaded[0], None
-    x_ref = problem.start(np.zeros((problem.B, problem.tables.tendon.shape[1])), None)
-    parts = [unloaded_jacobian(sh, problem.tables, x_ref[lo:hi]) for sh, (lo, hi) in zip(problem.solvers, problem.chunks)]
-    problem._unloaded = (np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts]))
-    return problem._unloaded
+    if problem._unloaded is None:
+        B, K = problem.B, problem.tables.tendon.shape[1]
+        x_ref = problem.start(np.zeros((B, K)), None)
+        if problem.robot.batch_size == 1:
+            J, spent = unloaded_jacobian(problem.solvers[0], problem.tables, x_ref[:problem.solvers[0].b], 1)
+            J, spent = np.broadcast_to(J[0], (B, *J.shape[1:])), np.pad(spent, (0, B - len(spent)))
+        else:
+            parts = [unloaded_jacobian(sh, problem.tables, x_ref[lo:hi], hi - lo)
+                     for sh, (lo, hi) in zip(problem.solvers, problem.chunks)]
+            J, spent = np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
+        problem._unloaded = (J, spent)
+        return J, spent
+    return problem._unloaded[0], None
 
 
-def unloaded_jacobian(sh: Shooting, tables: Tables, x_ref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The first Jacobian of a straight-started Broyden solve (not for displacement control, whose
-    start is the rod's own): each rod's unloaded Jacobian, the
-    finite-difference Jacobian at the straight start x_ref (b, nu) of a zero command (probes over
-    long steps, core/solver.py first_jacobian). It depends on the rod alone, not on its command,
-    its neighbours or the chunking; a robot with one row per table makes it for one rod and
-    shares it. Measured (experiments/bench_integrations.py): iterations as with each rod's own
-    first Jacobian at its own start or fewer (the report robot at 0-30 N: 3.99 -> 3.89), and
-    the 7 probes of a first Jacobian gone from every solve after the first. A rod whose unloaded
-    Jacobian is not finite gets it anyway: its first step fails and it rebuilds its own. Returns
-    (b, nu, nu) and the integrations spent (b,): nu + 1 on the rods it was made for."""
-    shared = all(getattr(tables, f).shape[0] == 1 for f in ("rod", "dyn", "tendon", "grid", "term_node", "pforce",
-                                                            "pnode", "tendon_len"))
-    mask = np.zeros(sh.b, dtype=bool)
-    mask[:1 if shared else None] = True
+def unloaded_jacobian(sh: Shooting, tables: Tables, x_ref: np.ndarray, rods: int) -> tuple[np.ndarray, np.ndarray]:
+    """The unloaded Jacobians of the first ``rods`` rods of a chunk: the finite-difference Jacobian
+    at the straight start x_ref (b, nu) of a zero command (probes over long steps, core/solver.py
+    first_jacobian), a straight-started Broyden solve's first. It depends on the rod alone, not on
+    its command, its neighbours or the chunking. Measured (experiments/bench_integrations.py):
+    iterations as with each rod's own first Jacobian at its own start or fewer (the report robot at
+    0-30 N: 3.99 -> 3.89), and the 7 probes of a first Jacobian gone from every solve after the
+    first. A rod whose unloaded Jacobian is not finite gets it anyway: its first step fails and it
+    rebuilds its own. Returns (b, nu, nu) (rows past ``rods`` unset) and the integrations spent (b,):
+    nu + 1 on those rods."""
+    mask = np.arange(sh.b) < rods
     sh.set_command(np.zeros((sh.b, tables.tendon.shape[1])), None)
     first_jacobian(sh, x_ref, mask)
-    J = sh.host(sh.newton.J).get(np.float64)
-    return (np.broadcast_to(J[0], J.shape) if shared else J.copy()), np.where(mask, tables.nu + 1, 0)
+    return sh.host(sh.newton.J).get(np.float64).copy(), np.where(mask, tables.nu + 1, 0)
 
 
 def _solution(tables: Tables, opts: StaticOptions, out: dict, job: _Job, parameters: tuple,
