@@ -341,7 +341,7 @@ class StaticProblem:
         taut[:, self.disp] = x0[:, self.j_of] >= 0
         sh.set_taut(taut)
         if job.J0 is not None:
-            sh.dev.put(sh.newton.J, job.J0[lo:hi])
+            sh.host(sh.newton.J).put(job.J0[lo:hi])
         sh.solve(x0, fresh_jacobian=job.J0 is None, **newton)
         if self.opts.continuation and not job.warm:
             finite, large, steps = continuation_steps(x0, self.opts.continuation)
