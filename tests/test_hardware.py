@@ -82,6 +82,34 @@ def test_calibration_recovers_known_parameters_within_their_uncertainty(tmp_path
                for n, v in par.items())
 
 
+def test_fit_jacobian_matches_central_differences_of_full_solves():
+    """The fit's implicit-function Jacobian (tendon compliances and angles at the motors' given
+    lengths, plus the path through the reference state) against central differences of whole
+    predictions of the scene with each fitted parameter moved (every parameter kind, both
+    segments; no tendon slack, where the tip's derivatives have a kink)."""
+    from tdcr_warp.apps import hardware as hw
+    rng = np.random.default_rng(3)
+    q = np.concatenate([rng.uniform(0.02, 0.2, (6, 6)) * (rng.random((6, 6)) < 0.4), np.zeros((1, 6))])
+    meas = read_measurements_from(q, np.zeros((7, 3)))
+    data = scene_dict()
+    spec = hw._parameter_spec(data, "tendon")
+    p = np.array([sp["value"] for sp in spec])
+    lo, hi = (np.array([sp[k] for sp in spec]) for k in ("lo", "hi"))
+    cur = predict(scene_from_dict(hw._apply(data, spec, p)), meas, parameters=hw._jacobian_names(spec), tol=1e-12)
+    assert cur["converged"].all() and not cur["slack"].any()
+    J = hw._fit_jacobian(data, spec, p, cur, np.arange(7), lo, hi)
+    for j, sp in enumerate(spec):
+        h = {"compliance": 1e-3, "pretension": 1e-2, "angle": 1e-5, "offset": 1e-6}[sp["kind"]]
+        up, down = p.copy(), p.copy()
+        up[j], down[j] = p[j] + h, max(p[j] - h, lo[j])
+        a, b = (predict(scene_from_dict(hw._apply(data, spec, x)), meas, tol=1e-12)["error_mm"] for x in (up, down))
+        fd = ((a - b) * 1e-3 / (up[j] - down[j])).ravel()
+        # measured, relative to the column's largest entry: angles <= 3e-5, compliances <= 1.3e-4,
+        # pretensions <= 2.5e-3 (a sum over a segment's three tendons that nearly cancels in x and y,
+        # each term as good as tip_jacobian's displacement columns, 1e-5 - 2.6e-5 here)
+        assert np.abs(fd).max() > 0 and np.abs(J[:, j] - fd).max() < 5e-3 * np.abs(fd).max(), sp["name"]
+
+
 def test_predict_cli_writes_one_row_per_input_and_the_metrics(tmp_path):
     csv = tmp_path / "synthetic.csv"
     q, tips = synthetic_csv(csv, rows=12)
@@ -118,13 +146,16 @@ def test_metrics_remove_the_mean_offset_for_the_aligned_rmse():
     (HEADER + "\n0,a,1e9," + ",".join(["0"] * 5) + ",1,2,3\n", "row 2, column servo_0_mm: 1000000000.0 mm is beyond"),
     (HEADER + "\n0,a," + ",".join(["0"] * 6) + ",1,two,3\n", "row 2, column tip_y: not a number: 'two'"),
     (HEADER + "\n", "no keypoint rows"),
+    (b"\x89PNG\r\n\x1a\n\x00\x00", "not a UTF-8 text file (byte 0x89 at offset 0)"),
+    ((HEADER + "\n0,caf\xe9," + ",".join(["0"] * 6) + ",1,2,3\n").encode("latin-1"), "not a UTF-8 text file"),
+    (HEADER.encode() + b"\n0,a\x00b," + b",".join([b"0"] * 6) + b",1,2,3\n", "not a text file (NUL byte at offset"),
 ])
 def test_bad_data_exits_2_naming_file_row_and_column(tmp_path, capsys, body, words):
     import tomli_w
     scene = tmp_path / "s.toml"
     scene.write_text(tomli_w.dumps(scene_dict()))
     data = tmp_path / "bad.csv"
-    data.write_text(body)
+    data.write_bytes(body) if isinstance(body, bytes) else data.write_text(body)
     out = tmp_path / "o"
     for cmd in ("predict", "fit"):
         assert main([cmd, str(scene), str(data), "--out", str(out)]) == 2

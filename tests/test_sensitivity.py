@@ -73,7 +73,7 @@ def test_tension_wrench_and_parameter_jacobians_match_central_differences_of_ful
     """A bent robot under gravity, a tip load and four tendons at mixed tensions."""
     rb = robot([tw.Tendon(offset=o) for o in FOUR], gravity=(0, 0, -9.81), tip_force=(0.02, -0.01, -0.05))
     tau = np.array([[3.0, 0.5, 0.0, 1.2], [0.2, 2.0, 1.0, 0.0]])
-    params = ["youngs_modulus", "tendons[0].offset[1]", "density", "radius"]
+    params = ["youngs_modulus", "tendons[0].offset[1]", "density", "radius", "tendons[0].angle"]
     opts = dict(nodes=30, tol=TIGHT)
     sol = tw.solve_static(rb, tau, sensitivities=True, parameters=params, **opts)
     assert sol.converged.all() and sol.parameter_names == tuple(params)
@@ -94,7 +94,8 @@ def test_tension_wrench_and_parameter_jacobians_match_central_differences_of_ful
                 v[c] += d
                 return tw.solve_static(tw.Robot(**{**_fields(rb), field: v}), tau, **opts)
             assert rel(sol.tip_compliance[:, :, 3 * i + c], _central(solve, h)) < 1e-6, (field, c)
-    steps = {"youngs_modulus": 1e-5 * E, "tendons[0].offset[1]": 1e-6, "density": 8.0, "radius": 1e-8}
+    steps = {"youngs_modulus": 1e-5 * E, "tendons[0].offset[1]": 1e-6, "density": 8.0, "radius": 1e-8,
+             "tendons[0].angle": 1e-4}
     for p, name in enumerate(params):
         def solve(d, name=name):
             return tw.solve_static(_set(rb, name, d), tau, **opts)
@@ -114,6 +115,10 @@ def _set(rb, name, d):
         c = int(name[-2])
         off = np.array(rb.tendons[0].offset[0])
         off[c] += d
+        return replace(rb, tendons=(replace(rb.tendons[0], offset=off),) + rb.tendons[1:])
+    if name == "tendons[0].angle":  # the offset turned about the backbone by d
+        x, y = np.array(rb.tendons[0].offset[0])
+        off = (x * np.cos(d) - y * np.sin(d), x * np.sin(d) + y * np.cos(d))
         return replace(rb, tendons=(replace(rb.tendons[0], offset=off),) + rb.tendons[1:])
     return replace(rb, **{name: getattr(rb, name) + d})
 
@@ -182,7 +187,8 @@ def test_unconverged_rods_get_nan_and_bad_parameters_a_clear_message():
     assert sol.converged[0] and not sol.converged[1]
     assert np.isfinite(sol.tip_jacobian[0]).all() and np.isnan(sol.tip_jacobian[1]).all()
     for bad, words in (("stiffness", "must be one of"), ("tendons[3].offset[0]", "1 tendons"),
-                       ("tip_force", "name a component"), ("tendons[0].offset[2]", "out of range")):
+                       ("tip_force", "name a component"), ("tendons[0].offset[2]", "out of range"),
+                       ("tendons[0].angle[0]", "is a scalar")):
         with pytest.raises(tw.InputError, match=words):
             tw.solve_static(rb, [1.0], parameters=[bad])
     with pytest.raises(tw.InputError, match="constant_curvature"):

@@ -28,12 +28,15 @@ import numpy as np
 
 from tdcr_warp.io.scene import Scene, scene_from_dict
 from tdcr_warp.model.robot import InputError
-from tdcr_warp.physics.statics import solve_static
+from tdcr_warp.physics.statics import reference_lengths, solve_static
 
 __all__ = ["FIT_PARAMETERS", "Measurements", "fit", "metrics", "predict", "read_measurements"]
 
 GRID_ANGLES, GRID_ROWS = 12, 120  # the fit's start: a whole-robot rotation tried every 30 degrees on ~120 rows
-FIT_RTOL = 1e-4  # Levenberg-Marquardt stops when an accepted step lowers the cost by less than this
+FIT_RTOL = 3e-5  # Levenberg-Marquardt stops when an accepted step lowers the cost by less than this
+LM_LAMBDA0 = 1.0  # its first damping (times the diagonal of J^T J): the nominal scene is far from the fit
+REFERENCE_TOL = 1e-12  # the reference solves of the fit's Jacobian: their lengths differ by ~1e-7 m a step
+COARSE_EVERY, COARSE_RTOL = 8, 1e-2  # the fit's first phase: every 8th row, until the cost falls by < 1%
 MAX_SERVO_MM = 100.0  # a displacement beyond this is not a tendon's (the rods are ~0.2 m long)
 TIP_COLUMNS = ("tip_x", "tip_y", "tip_z")
 
@@ -62,10 +65,18 @@ def read_measurements(paths, servo_columns: list[str]) -> Measurements:
     for path in [paths] if isinstance(paths, (str, Path)) else paths:
         path = Path(path)
         try:
-            text = path.read_text()
+            text = path.read_text(encoding="utf-8")
+            if "\x00" in text:
+                raise InputError(f"{path}: not a text file (NUL byte at offset {text.index(chr(0))}); "
+                                 "expected a CSV of keypoints")
+            rows = list(csv.reader(text.splitlines()))
         except OSError as e:
             raise InputError(f"{path}: cannot read it: {e.strerror or e}") from None
-        rows = list(csv.reader(text.splitlines()))
+        except UnicodeDecodeError as e:
+            raise InputError(f"{path}: not a UTF-8 text file (byte 0x{e.object[e.start]:02x} at offset {e.start}); "
+                             "expected a CSV of keypoints") from None
+        except csv.Error as e:
+            raise InputError(f"{path}: not a CSV ({e})") from None
         if not rows or not any(rows):
             raise InputError(f"{path}: empty file (expected a header and keypoint rows)")
         header = [h.strip() for h in rows[0]]
@@ -115,7 +126,9 @@ RETRY_ROUNDS = 4
 def predict(scene: Scene, meas: Measurements, device=None, initial=None, **overrides) -> dict:
     """One batched solve of every row, then (up to RETRY_ROUNDS batched solves of the rows that
     did not converge) each such row again from the solution of the row before it in the same
-    file, the way the robot was recorded: every keypoint settled from the last. Returns
+    file, the way the robot was recorded: every keypoint settled from the last; with a warm start
+    (``initial``: a solution of as many rows), what is still unconverged once more from the
+    straight rod. Returns
     ``point_mm`` (M, 3) the predicted measured point, ``error_mm`` (M, 3) predicted less
     measured, ``converged`` (M,), ``unstable`` (M,) bool (converged to an equilibrium the stability
     verdict found unstable: not a trustworthy prediction), ``slack`` (M, K), ``retried`` (M,) bool, the
@@ -139,6 +152,12 @@ def predict(scene: Scene, meas: Measurements, device=None, initial=None, **overr
         retried[rows] = True
         if not part.converged.any():
             break
+        sol = sol.replaced(rows[part.converged], part.rows(part.converged))
+    rows = np.flatnonzero(~sol.converged)
+    if initial is not None and len(rows):  # what a warm start lost, solved again from the straight rod
+        part = solve_static(scene.robot, tau[rows], displacements=q[rows], options=scene.options, device=device,
+                            **overrides)
+        retried[rows] = True
         sol = sol.replaced(rows[part.converged], part.rows(part.converged))
     wall = time.perf_counter() - t0
     point = 1e3 * (sol.tip_position + np.array(hw.get("marker_offset", [0, 0, 0])) +
@@ -184,7 +203,7 @@ DETAILS = ("segment", "tendon")
 
 def _parameter_spec(data: dict, detail: str) -> list[dict]:
     """The fitted parameters: name, kind, the tendons (or axis) each acts on, start value,
-    bounds and difference step. detail "segment": one compliance, a pretension and a rotation
+    bounds and the difference step of its reference lengths (_reference_rates). detail "segment": one compliance, a pretension and a rotation
     per segment; "tendon": a compliance and a pretension per segment and a rotation per tendon."""
     if detail not in DETAILS:
         raise InputError(f"fit detail must be one of {DETAILS}, got {detail!r}")
@@ -198,7 +217,7 @@ def _parameter_spec(data: dict, detail: str) -> list[dict]:
                      "lo": math.log(1e-7), "hi": math.log(1e-1), "step": 1e-3})
     for s, g in enumerate(segs):
         spec.append({"name": f"pretension[{s}]", "kind": "pretension", "on": g,
-                     "value": float(np.mean([t[k]["pretension"] for k in g])), "lo": 0.0, "hi": 50.0, "step": 1e-3})
+                     "value": float(np.mean([t[k]["pretension"] for k in g])), "lo": 0.0, "hi": 50.0, "step": 1e-2})
     for a, g in enumerate([[k] for k in everyone] if detail == "tendon" else segs):
         spec.append({"name": f"angle[{a}]", "kind": "angle", "on": g, "value": 0.0, "lo": -0.6, "hi": 0.6,
                      "step": 1e-4})
@@ -251,56 +270,116 @@ def _grid_angle(data: dict, spec: list[dict], p: np.ndarray, angles: np.ndarray,
     return best
 
 
-def _fit_jacobian(evaluate, p: np.ndarray, steps: np.ndarray, cur: dict) -> np.ndarray:
-    """(3 rows, P) d (predicted - measured point) [m] / d parameter over the rows ``cur`` converged
-    on: forward differences of ``evaluate`` (warm-started from ``cur``) for the physical parameters
-    (a row whose probe did not converge gets 0), exact for the last three (the base offset)."""
-    n_phys = len(p) - 3
-    ok = cur["converged"]
-    J = np.zeros((3 * int(ok.sum()), len(p)))
-    for j in range(n_phys):
-        q = p.copy()
-        q[j] += steps[j]
-        pr = evaluate(q, cur["solution"])
-        both = pr["converged"][ok]
-        col = (pr["error_mm"][ok] - cur["error_mm"][ok]) * 1e-3 / steps[j]
-        J[:, j] = np.where(np.repeat(both, 3), col.ravel(), 0.0)
-    for i in range(3):
-        J[i::3, n_phys + i] = 1.0
-    return J
+def _jacobian_names(spec: list[dict]) -> list[str]:
+    """The robot parameters whose tip Jacobians (solve_static ``parameters``) the fit's columns are
+    made of: every tendon's compliance and angle (a pretension moves only the reference state)."""
+    K = 1 + max(k for sp in spec if sp["kind"] != "offset" for k in sp["on"])
+    return [f"tendons[{k}].{f}" for f in ("compliance", "angle") for k in range(K)]
+
+
+def _reference_rates(data: dict, spec: list[dict], p: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """(K, P) d (reference length of each tendon) / d parameter: central differences (one-sided at
+    a bound) of the one-rod reference solve of the scene at p (statics.reference_lengths); zero
+    for the base offset."""
+    K = len(data["tendons"])
+    out = np.zeros((K, len(p)))
+    for j, sp in enumerate(spec):
+        if sp["kind"] == "offset":
+            continue
+        up, down = p.copy(), p.copy()
+        up[j], down[j] = min(p[j] + sp["step"], hi[j]), max(p[j] - sp["step"], lo[j])
+        scenes = [scene_from_dict(_apply(data, spec, q)) for q in (up, down)]
+        ref = [reference_lengths(sc.robot, options=sc.options, tol=REFERENCE_TOL)[0] for sc in scenes]
+        out[:, j] = (ref[0] - ref[1]) / (up[j] - down[j])
+    return out
+
+
+def _fit_jacobian(data: dict, spec: list[dict], p: np.ndarray, cur: dict, rows: np.ndarray, lo: np.ndarray,
+                  hi: np.ndarray) -> np.ndarray:
+    """(3 rows, P) d (predicted - measured point) [m] / d parameter over ``rows`` of the solution
+    ``cur`` (solved with the ``_jacobian_names`` parameters), by the implicit-function theorem: a
+    parameter moves the tip at the motors' given lengths (``parameter_jacobian``) and through the
+    reference state, which sets those lengths (avail = reference - q: minus ``tip_jacobian`` times
+    ``_reference_rates``); the base offset's columns are the identity. No solve is repeated."""
+    sol = cur["solution"]
+    names = _jacobian_names(spec)
+    PJ, TJ = sol.parameter_jacobian[rows, :3], sol.tip_jacobian[rows, :3]
+    J = np.zeros((len(rows), 3, len(p)))
+    J -= np.einsum("bik,kj->bij", TJ, _reference_rates(data, spec, p, lo, hi))
+    for j, sp in enumerate(spec):
+        if sp["kind"] == "compliance":  # log-scaled: d/dv = compliance d/dc
+            J[:, :, j] += math.exp(p[j]) * sum(PJ[:, :, names.index(f"tendons[{k}].compliance")] for k in sp["on"])
+        elif sp["kind"] == "angle":
+            J[:, :, j] += sum(PJ[:, :, names.index(f"tendons[{k}].angle")] for k in sp["on"])
+        elif sp["kind"] == "offset":
+            J[:, sp["on"], j] = 1.0
+    return J.reshape(3 * len(rows), len(p))
 
 
 def fit(data: dict, meas: Measurements, *, detail: str = "tendon", max_iter: int = 30, device=None,
         progress=None) -> dict:
-    """Calibrate the scene dict ``data`` (with [hardware]) on ``meas`` by Levenberg-Marquardt:
-    the residual is every row's predicted less measured point [m]; the Jacobian by forward
-    differences of batched solves (one per physical parameter, warm-started from the
-    nominal solution; the base offset's columns are exact). Rows that do not converge are left
-    out of that evaluation. Returns the fitted scene dict, the parameters with their standard
-    deviations (sigma^2 (J^T J)^-1, sigma^2 the residual variance per coordinate), the training
-    metrics, iterations and time."""
+    """Calibrate the scene dict ``data`` (with [hardware]) on ``meas`` by Levenberg-Marquardt
+    (``_levenberg_marquardt``): the residual is every row's predicted less measured point [m]; its
+    Jacobian comes with each batched solve (``_fit_jacobian``: implicit-function theorem, no solve
+    repeated), and each trial solve starts warm from the last accepted one. From the grid's start
+    it runs first on every COARSE_EVERY-th row, then on all rows from there. Rows that do not
+    converge are left out of that evaluation. Returns the fitted scene dict, the parameters with
+    their standard deviations (sigma^2 (J^T J)^-1 at the fitted parameters, sigma^2 the residual
+    variance per coordinate), the training metrics, iterations and time."""
     t0 = time.perf_counter()
     spec = _parameter_spec(data, detail)
     names = [sp["name"] for sp in spec]
     p = np.array([sp["value"] for sp in spec])
-    lo, hi, steps = (np.array([sp[k] for sp in spec]) for k in ("lo", "hi", "step"))
+    lo, hi = (np.array([sp[k] for sp in spec]) for k in ("lo", "hi"))
     angles = np.array([sp["kind"] == "angle" for sp in spec])
     base_data = copy.deepcopy(data)
-
-    def evaluate(q, warm=None):
-        sc = scene_from_dict(_apply(base_data, spec, q))
-        out = predict(sc, meas, device=device, initial=warm)
-        return out
-
     best = _grid_angle(base_data, spec, p, angles, meas, device)
     base_data = _apply(base_data, spec, np.where(angles, best[1], p))
     p = np.where(angles, 0.0, p)  # the rotations are now relative to the grid's
-    cur = evaluate(p)
-    lam, it, history = 1e-3, 0, [{"grid_angle_rad": float(best[1]), "grid_rmse_aligned_mm": float(best[0])}]
+    history = [{"grid_angle_rad": float(best[1]), "grid_rmse_aligned_mm": float(best[0])}]
+    its, cur = 0, None
+    for part in (meas.subset(np.arange(0, len(meas), COARSE_EVERY)), meas):
+        # all rows start from the coarse phase's solution of the row at or before them (a neighbour
+        # in the recording)
+        warm = None if cur is None else cur["solution"].rows(np.arange(len(meas)) // COARSE_EVERY)
+
+        def evaluate(q, warm=None, part=part):
+            out = predict(scene_from_dict(_apply(base_data, spec, q)), part, device=device, initial=warm,
+                          parameters=_jacobian_names(spec))
+            ok = out["converged"] & np.isfinite(out["solution"].parameter_jacobian).all(axis=(1, 2))
+            out["rows"] = np.flatnonzero(ok)
+            out["jacobian"] = _fit_jacobian(base_data, spec, q, out, out["rows"], lo, hi)
+            return out
+
+        p, cur, n = _levenberg_marquardt(evaluate, p, warm, lo, hi, max_iter - its, history, progress,
+                                         COARSE_RTOL if part is not meas else FIT_RTOL)
+        its += n
+    J, r = cur["jacobian"], cur["error_mm"][cur["rows"]].ravel() * 1e-3
+    sigma2 = float(r @ r) / max(len(r) - len(p), 1)
+    try:
+        std = np.sqrt(np.clip(np.diag(sigma2 * np.linalg.inv(J.T @ J)), 0, None))
+    except np.linalg.LinAlgError:
+        std = np.full(len(p), np.nan)
+    fitted = _apply(base_data, spec, p)
+    L = fitted["robot"]["length"]
+    report = {"parameters": {n: {"value": _natural(n, v), "std": _natural_std(n, v, s)} for n, v, s in zip(names, p, std)},
+              "iterations": its, "history": history, "wall_s": time.perf_counter() - t0,
+              "training": metrics(cur["error_mm"], cur["converged"], L), "rows": len(meas)}
+    return {"scene": fitted, "report": report, "prediction": cur}
+
+
+def _levenberg_marquardt(evaluate, p: np.ndarray, warm, lo: np.ndarray, hi: np.ndarray, max_iter: int,
+                         history: list, progress, rtol: float) -> tuple[np.ndarray, dict, int]:
+    """Levenberg-Marquardt (Marquardt's scaling, lambda from LM_LAMBDA0, /3 on success, x4 on
+    failure) from p within [lo, hi] on ``evaluate(q, warm)``'s residual ``error_mm`` over its
+    ``rows`` and its ``jacobian`` (the first evaluation warm-started from ``warm`` or None); a trial is accepted if it converges on as many rows and lowers
+    the cost. Stops when a step fails 8 times, the cost falls by less than ``rtol``, or after
+    max_iter iterations. Appends to ``history``; returns (p, its evaluation, iterations)."""
+    cur = evaluate(p, warm)
+    lam, it = LM_LAMBDA0, 0
     for it in range(1, max_iter + 1):
-        ok = cur["converged"]
-        r = cur["error_mm"][ok].ravel() * 1e-3
-        J = _fit_jacobian(evaluate, p, steps, cur)
+        rows, J = cur["rows"], cur["jacobian"]
+        r = cur["error_mm"][rows].ravel() * 1e-3
         cost = float(r @ r)
         accepted = False
         for _ in range(8):
@@ -308,35 +387,22 @@ def fit(data: dict, meas: Measurements, *, detail: str = "tendon", max_iter: int
             dp = np.linalg.solve(A + lam * np.diag(np.diag(A) + 1e-30), -J.T @ r)
             q = np.clip(p + dp, lo, hi)
             trial = evaluate(q, cur["solution"])
-            rt = trial["error_mm"][ok & trial["converged"]].ravel() * 1e-3
-            if trial["converged"].sum() >= ok.sum() and float(rt @ rt) < cost:
+            rt = trial["error_mm"][np.intersect1d(rows, trial["rows"])].ravel() * 1e-3
+            if len(trial["rows"]) >= len(rows) and float(rt @ rt) < cost:
                 p, cur, lam, accepted = q, trial, lam / 3, True
                 break
             lam *= 4
-        history.append({"iteration": it, "rmse_mm": float(np.sqrt(cost / max(len(r) // 3, 1)) * 1e3),
-                        "lambda": lam, "accepted": accepted})
+        history.append({"iteration": len(history), "rows": len(cur["converged"]),
+                        "rmse_mm": float(np.sqrt(cost / max(len(r) // 3, 1)) * 1e3), "lambda": lam,
+                        "accepted": accepted})
         if progress:
             progress(history[-1])
-        if not accepted or np.abs(dp).max() < 1e-7:
+        if not accepted:
             break
-        new_cost = float(np.sum(cur["error_mm"][cur["converged"]] ** 2)) * 1e-6
-        if cost - new_cost < FIT_RTOL * cost:  # the cost has stopped falling
+        new_cost = float(np.sum(cur["error_mm"][cur["rows"]] ** 2)) * 1e-6
+        if np.abs(dp).max() < 1e-7 or cost - new_cost < rtol * cost:  # the cost has stopped falling
             break
-    ok = cur["converged"]
-    r = cur["error_mm"][ok].ravel() * 1e-3
-    dof = max(len(r) - len(p), 1)
-    sigma2 = float(r @ r) / dof
-    try:
-        cov = sigma2 * np.linalg.inv(J.T @ J)
-        std = np.sqrt(np.clip(np.diag(cov), 0, None))
-    except np.linalg.LinAlgError:
-        std = np.full(len(p), np.nan)
-    fitted = _apply(base_data, spec, p)
-    L = fitted["robot"]["length"]
-    report = {"parameters": {n: {"value": _natural(n, v), "std": _natural_std(n, v, s)} for n, v, s in zip(names, p, std)},
-              "iterations": it, "history": history, "wall_s": time.perf_counter() - t0,
-              "training": metrics(cur["error_mm"], ok, L), "rows": len(meas)}
-    return {"scene": fitted, "report": report, "prediction": cur}
+    return p, cur, it
 
 
 def _natural(name: str, v: float) -> float:

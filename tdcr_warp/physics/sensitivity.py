@@ -48,7 +48,9 @@ def pose_rate(base: dict, probe: dict, h: np.ndarray) -> np.ndarray:
 # (the step is PARAM_REL times the larger of |value| and it).
 _SCALAR = {"youngs_modulus": "E", "poisson_ratio": 1.0, "radius": "r", "density": 1000.0, "length": "L"}
 _VECTOR = {"gravity": 10.0, "tip_force": "fs", "tip_moment": "ms", "precurvature": "1/L"}
-_TENDON = {"offset": "r", "friction": 1.0, "compliance": "c", "pretension": "fs", "helix_radius": "r"}
+_TENDON = {"offset": "r", "friction": 1.0, "compliance": "c", "pretension": "fs", "helix_radius": "r", "angle": 1.0}
+# "angle": a tendon's route turned about the backbone [rad] from where it is (its offsets rotated;
+# a derived parameter with no stored field, its value 0)
 
 
 def _field_scale(robot: Robot, what, B: int) -> np.ndarray:
@@ -98,6 +100,8 @@ def parameter_value(robot: Robot, name: str) -> tuple[np.ndarray, np.ndarray]:
     if tendon is not None and not 0 <= tendon < robot.n_tendons:
         raise InputError(f"parameter {name!r}: the robot has {robot.n_tendons} tendons")
     owner = robot if tendon is None else robot.tendons[tendon]
+    if fname == "angle":
+        return np.zeros(()), np.zeros(robot.batch_size)
     value = np.array(getattr(owner, fname), dtype=np.float64)
     cur = value[..., comp] if comp is not None else value
     return value, np.broadcast_to(cur, (robot.batch_size,)) if cur.ndim else np.full(robot.batch_size, float(cur))
@@ -119,9 +123,28 @@ def perturbed(robot: Robot, name: str, rel: float, sign: float = 1.0) -> tuple[R
         return replace(robot, **{fname: new}), h
     if fname == "helix_radius" and owner.routing != "helix":
         raise InputError(f"parameter {name!r}: tendon {tendon} is not helical")
+    if fname == "angle" and owner.routing == "points":
+        raise InputError(f"parameter {name!r}: tendon {tendon} is routed through points (turn them instead)")
     tendons = list(robot.tendons)
-    tendons[tendon] = replace(owner, **{fname: new})
+    tendons[tendon] = _turned(owner, new) if fname == "angle" else replace(owner, **{fname: new})
     return replace(robot, tendons=tuple(tendons)), h
+
+
+def _turned(tendon, angle: np.ndarray):
+    """The tendon with its route turned about the backbone by ``angle`` (B,) [rad]: its offsets
+    (base and, for a linear route, end) rotated; a helix's phase advanced."""
+    c, s = np.cos(angle)[:, None], np.sin(angle)[:, None]
+
+    def turn(xy):
+        xy = np.broadcast_to(np.asarray(xy, dtype=np.float64), (len(angle), 2))
+        return np.concatenate([c * xy[:, :1] - s * xy[:, 1:], s * xy[:, :1] + c * xy[:, 1:]], axis=1)
+
+    fields = {"offset": turn(tendon.offset)}
+    if tendon.offset_end is not None:
+        fields["offset_end"] = turn(tendon.offset_end)
+    if tendon.routing == "helix":
+        fields["phase"] = np.asarray(tendon.phase, dtype=np.float64) + angle
+    return replace(tendon, **fields)
 
 
 def parameter_tables(robot: Robot, tables: Tables, names, precision: str, nodes: int, specialize: bool,
@@ -187,10 +210,10 @@ def linearise(sh, tau: np.ndarray, tables: Tables, lo: int, hi: int, precision: 
         spent += 1
     rod = np.broadcast_to(tables.rows("rod", lo, hi), (b, layout.ROD_WIDTH))
     hx = _unknown_steps(x, rod, precision)
-    J, Yx, fields, probes = _unknown_rates(sh, x, hx, base, tables.features.displaced > 0, shapes)
-    D, Y, inputs = _input_rates(sh, x, tau, tables, lo, hi, rod, PROBE_REL[precision], parameters, base)
-    spent += probes + inputs
-    with np.errstate(all="ignore"):
+    with np.errstate(all="ignore"):  # a rod that did not converge may probe non-finite: its rates are NaN
+        J, Yx, fields, probes = _unknown_rates(sh, x, hx, base, tables.features.displaced > 0, shapes)
+        D, Y, inputs = _input_rates(sh, x, tau, tables, lo, hi, rod, PROBE_REL[precision], parameters, base)
+        spent += probes + inputs
         try:
             dx = -np.linalg.solve(J, D)
         except np.linalg.LinAlgError:  # a singular rod: NaN for it alone
