@@ -1,8 +1,9 @@
 """Predicting two real robots (opencr-mujoco's Franka TDCRs v4 and v6; data: their training files
 only, v4_train.csv and v6_train.csv from that project's data/sysid folder, which this repository
 does not ship: --data DIR, or $TDCR_HARDWARE_DATA; without them the script says so and skips): calibrate on all training rows (the fitted scenes become
-examples/hardware/ftdcr_v4.toml and ftdcr_v6.toml), cross-validate on the pattern labels (two
-folds: the sorted labels alternate between them; fit on one, predict the other), and compare the
+examples/hardware/ftdcr_v4.toml and ftdcr_v6.toml), cross-validate without leaks (FOLDS folds of
+whole recorded patterns in consecutive blocks, tdcr_warp.apps.hardware.pattern_folds: fit on the
+others, predict the held-out block; the aligned RMSE pooled over folds and each fold's), and compare the
 model rungs on the fitted scenes (error and time per rung on all training rows). Writes
 results/hardware_validation.json.
 
@@ -24,11 +25,12 @@ import tomli_w
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import ROOT, metadata, write_report  # noqa: E402
 
-from tdcr_warp.apps.hardware import fit, metrics, predict, read_measurements  # noqa: E402
+from tdcr_warp.apps.hardware import fit, metrics, pattern_folds, predict, read_measurements  # noqa: E402
 from tdcr_warp.io.scene import scene_from_dict  # noqa: E402
 from tdcr_warp.model.robot import InputError  # noqa: E402
 
 DATA = Path(os.environ.get("TDCR_HARDWARE_DATA", ROOT.parent / "shared" / "validation" / "ocm_ftdcr"))
+FOLDS = 5
 RUNGS = {"coupled cosserat (fitted)": {}, "coupled kirchhoff": {"rod": "kirchhoff"},
          "point cosserat": {"model": "point"}, "coupled cosserat N = 8": {"nodes": 8},
          "coupled cosserat, friction mu = 0.1": "friction", "constant curvature": {"model": "constant_curvature"}}
@@ -70,20 +72,25 @@ def one_robot(name: str, scenes: bool, smoke: bool, data_dir: Path = DATA) -> di
                   f"# github ContinuumRoboticsLab/opencr-mujoco): training RMSE {tr['rmse_mm']:.2f} mm, aligned "
                   f"{tr['rmse_aligned_mm']:.2f} mm.\n# Predict new keypoints: tdcr-warp predict {target.relative_to(ROOT)} NEW.csv\n")
         target.write_text(header + tomli_w.dumps(res["scene"]))
-    labels = np.unique(meas.labels)
+    fold = pattern_folds(meas.labels, 2 if smoke else FOLDS)
     folds = []
-    for k in range(2):
-        test_labels = labels[k::2]
-        test = np.isin(meas.labels, test_labels)
+    for k in range(fold.max() + 1):
+        test = fold == k
         fk = fit(data, meas.subset(np.flatnonzero(~test)), max_iter=2 if smoke else 30)
         pk = predict(scene_from_dict(fk["scene"]), meas.subset(np.flatnonzero(test)))
-        folds.append(_summary(metrics(pk["error_mm"], pk["converged"], L)))
-    out["cross_validation"] = {"folds": folds,
-                               "rmse_mm": float(np.sqrt(np.mean([f["rmse_mm"] ** 2 for f in folds]))),
-                               "rmse_aligned_mm": float(np.sqrt(np.mean([f["rmse_aligned_mm"] ** 2 for f in folds])))}
+        patterns = sorted({str(v).removesuffix("_hold") for v in meas.labels[test]})
+        folds.append(_summary(metrics(pk["error_mm"], pk["converged"], L)) | {"patterns": patterns,
+                                                                              "fit_s": fk["report"]["wall_s"]})
+    aligned = np.array([f["rmse_aligned_mm"] for f in folds])
+    rows = np.array([f["rows"] for f in folds])
+    out["cross_validation"] = {"folds": folds, "split": "whole patterns, consecutive blocks (pattern_folds)",
+                               "rmse_mm": float(np.sqrt(np.sum(rows * [f["rmse_mm"] ** 2 for f in folds]) / rows.sum())),
+                               "rmse_aligned_mm": float(np.sqrt(np.sum(rows * aligned**2) / rows.sum())),
+                               "aligned_min_mm": float(aligned.min()), "aligned_max_mm": float(aligned.max())}
     cv = out["cross_validation"]
-    print(f"  cross-validated (2 folds of labels): RMSE {cv['rmse_mm']:.2f} mm ({100 * cv['rmse_mm'] / (1e3 * L):.2f}% "
-          f"of L), aligned {cv['rmse_aligned_mm']:.2f} mm")
+    print(f"  cross-validated ({len(folds)} folds of whole patterns): RMSE {cv['rmse_mm']:.2f} mm "
+          f"({100 * cv['rmse_mm'] / (1e3 * L):.2f}% of L), aligned {cv['rmse_aligned_mm']:.2f} mm (folds "
+          + ", ".join(f"{a:.2f}" for a in aligned) + ")")
     rungs = {}
     fitted = res["scene"]
     for rung, over in RUNGS.items():

@@ -110,6 +110,18 @@ def test_fit_jacobian_matches_central_differences_of_full_solves():
         assert np.abs(fd).max() > 0 and np.abs(J[:, j] - fd).max() < 5e-3 * np.abs(fd).max(), sp["name"]
 
 
+def test_pattern_folds_keep_whole_patterns_in_consecutive_blocks():
+    from tdcr_warp.apps.hardware import pattern_folds
+    labels = np.array(["a"] * 4 + ["b"] * 3 + ["b_hold"] + ["c"] * 4 + ["d"] * 2 + ["d_hold"] * 2 + ["e"] * 4)
+    fold = pattern_folds(labels, 3)
+    assert sorted(set(fold)) == [0, 1, 2] and (np.diff(fold) >= 0).all()  # consecutive blocks
+    for name in "abcde":  # a pattern and its hold rows in one fold
+        assert len(set(fold[np.char.startswith(labels, name)])) == 1, name
+    assert max(np.bincount(fold)) - min(np.bincount(fold)) <= 4  # about equal rows
+    with pytest.raises(tw.InputError, match="2 <= k <= 5"):
+        pattern_folds(labels, 6)
+
+
 def test_predict_cli_writes_one_row_per_input_and_the_metrics(tmp_path):
     csv = tmp_path / "synthetic.csv"
     q, tips = synthetic_csv(csv, rows=12)

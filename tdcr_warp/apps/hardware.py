@@ -30,7 +30,7 @@ from tdcr_warp.io.scene import Scene, scene_from_dict
 from tdcr_warp.model.robot import InputError
 from tdcr_warp.physics.statics import reference_lengths, solve_static
 
-__all__ = ["FIT_PARAMETERS", "Measurements", "fit", "metrics", "predict", "read_measurements"]
+__all__ = ["FIT_PARAMETERS", "Measurements", "fit", "metrics", "pattern_folds", "predict", "read_measurements"]
 
 GRID_ANGLES, GRID_ROWS = 12, 120  # the fit's start: a whole-robot rotation tried every 30 degrees on ~120 rows
 FIT_RTOL = 3e-5  # Levenberg-Marquardt stops when an accepted step lowers the cost by less than this
@@ -109,6 +109,24 @@ def read_measurements(paths, servo_columns: list[str]) -> Measurements:
             source.append(str(path))
     return Measurements(np.array(labels), np.array(servo, dtype=np.float64), np.array(tips, dtype=np.float64),
                         np.array(source))
+
+
+def pattern_folds(labels: np.ndarray, k: int) -> np.ndarray:
+    """(M,) the fold (0 .. k-1) of every row for a cross-validation that cannot leak: whole recorded
+    patterns (a label and its ``_hold`` rows, which repeat the pattern's last pose), in blocks of
+    consecutive patterns in recording order (neighbouring patterns, such as one bending direction and
+    the next, share a fold), the blocks of about equal rows."""
+    pattern = np.array([str(v).removesuffix("_hold") for v in labels])
+    names, first, inverse = np.unique(pattern, return_index=True, return_inverse=True)
+    order = np.argsort(first)  # the patterns in recording order
+    rank = np.empty(len(names), dtype=int)
+    rank[order] = np.arange(len(names))
+    rows = np.bincount(rank[inverse], minlength=len(names))  # rows of each pattern, in recording order
+    if k < 2 or k > len(names):
+        raise InputError(f"folds: need 2 <= k <= {len(names)} (the recorded patterns), got {k}")
+    start = np.cumsum(rows) - rows  # rows before each pattern
+    fold_of_rank = np.minimum(start * k // len(labels), k - 1)
+    return fold_of_rank[rank[inverse]]
 
 
 def _hardware(scene: Scene) -> dict:
