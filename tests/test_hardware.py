@@ -110,6 +110,28 @@ def test_fit_jacobian_matches_central_differences_of_full_solves():
         assert np.abs(fd).max() > 0 and np.abs(J[:, j] - fd).max() < 5e-3 * np.abs(fd).max(), sp["name"]
 
 
+def test_recorded_order_without_friction_is_the_batch_and_with_friction_a_loop():
+    """predict_recorded: each row a quasi-static step from the last. Frictionless, the rows are
+    predict's to Newton's tolerance; with capstan friction, pulling tendon 0 to 1 mm and letting it
+    back passes the same displacements with other tips on the way back (hysteresis)."""
+    from tdcr_warp.apps.hardware import predict_recorded
+    up = np.linspace(0.0, 1.0, 6)
+    q = np.zeros((11, 6))
+    q[:, 0] = np.r_[up, up[-2::-1]]
+    meas = read_measurements_from(q, np.zeros((11, 3)))
+    smooth = scene_from_dict(scene_dict())
+    a, b = predict(smooth, meas), predict_recorded(smooth, meas)
+    assert a["converged"].all() and b["converged"].all()
+    assert np.abs(a["point_mm"] - b["point_mm"]).max() < 1e-5
+    d = scene_dict()
+    for t in d["tendons"]:
+        t["friction"] = 0.3
+    c = predict_recorded(scene_from_dict(d), meas)
+    assert c["converged"].all()
+    loop = np.linalg.norm(c["point_mm"][1:4] - c["point_mm"][9:6:-1], axis=1)  # q = 0.2, 0.4, 0.6 mm up and down
+    assert loop.min() > 1e-3 and np.abs(c["point_mm"][5] - a["point_mm"][5]).max() > 1e-3
+
+
 def test_pattern_folds_keep_whole_patterns_in_consecutive_blocks():
     from tdcr_warp.apps.hardware import pattern_folds
     labels = np.array(["a"] * 4 + ["b"] * 3 + ["b_hold"] + ["c"] * 4 + ["d"] * 2 + ["d_hold"] * 2 + ["e"] * 4)
@@ -141,7 +163,10 @@ def test_predict_cli_writes_one_row_per_input_and_the_metrics(tmp_path):
             if f"`{k}`" not in doc] == []  # documented (docs/outputs.md)
     lines = (out / "predictions.csv").read_text().splitlines()
     assert len(lines) == 13 and lines[0].startswith("row,source,pattern_label,pred_x_mm")
-    assert (out / "predict.png").exists()
+    assert (out / "predict.png").exists() and m["recorded_order"] is False
+    assert main(["predict", str(scene), str(csv), "--out", str(tmp_path / "rec"), "--recorded-order"]) == 0
+    r = json.loads((tmp_path / "rec" / "metrics.json").read_text())  # frictionless: the same tips
+    assert r["recorded_order"] is True and abs(r["rmse_mm"] - m["rmse_mm"]) < 1e-5
 
 
 def test_metrics_remove_the_mean_offset_for_the_aligned_rmse():

@@ -28,9 +28,10 @@ import numpy as np
 
 from tdcr_warp.io.scene import Scene, scene_from_dict
 from tdcr_warp.model.robot import InputError
-from tdcr_warp.physics.statics import reference_lengths, solve_static
+from tdcr_warp.physics.statics import StaticSolution, reference_lengths, solve_static
 
-__all__ = ["FIT_PARAMETERS", "Measurements", "fit", "metrics", "pattern_folds", "predict", "read_measurements"]
+__all__ = ["FIT_PARAMETERS", "Measurements", "fit", "metrics", "pattern_folds", "predict", "predict_recorded",
+           "read_measurements"]
 
 GRID_ANGLES, GRID_ROWS = 12, 120  # the fit's start: a whole-robot rotation tried every 30 degrees on ~120 rows
 FIT_RTOL = 3e-5  # Levenberg-Marquardt stops when an accepted step lowers the cost by less than this
@@ -139,6 +140,7 @@ def _hardware(scene: Scene) -> dict:
 
 
 RETRY_ROUNDS = 4
+PROGRESS_ROWS = 200
 
 
 def predict(scene: Scene, meas: Measurements, device=None, initial=None, **overrides) -> dict:
@@ -177,12 +179,45 @@ def predict(scene: Scene, meas: Measurements, device=None, initial=None, **overr
                             **overrides)
         retried[rows] = True
         sol = sol.replaced(rows[part.converged], part.rows(part.converged))
-    wall = time.perf_counter() - t0
+    return _predicted(hw, meas, sol, retried, time.perf_counter() - t0)
+
+
+def _predicted(hw: dict, meas: Measurements, sol, retried: np.ndarray, wall: float) -> dict:
     point = 1e3 * (sol.tip_position + np.array(hw.get("marker_offset", [0, 0, 0])) +
                    np.array(hw.get("base_offset", [0, 0, 0])))
     return {"point_mm": point, "error_mm": point - meas.tip_mm, "converged": sol.converged,
             "unstable": sol.converged & ~sol.success, "slack": sol.slack, "retried": retried, "solution": sol,
             "wall_s": wall}
+
+
+def predict_recorded(scene: Scene, meas: Measurements, device=None, progress=None, **overrides) -> dict:
+    """The rows solved one by one in the order they were recorded, each as a quasi-static step from
+    the row before it in the same file (solve_static ``history``): with friction, each tendon keeps
+    the tension profile friction holds (stick) and slips where it cannot, the slip directions from
+    each motor's motion since the last row, so a pull and a release to the same displacement can
+    end in different shapes (hysteresis). A row whose step does not converge is solved again without
+    the memory (``retried``), and the next row starts from it. Without friction the rows are what
+    ``predict`` gives (to Newton's tolerance), at one solve per row. ``progress(i, M)`` every
+    PROGRESS_ROWS rows. Returns what ``predict`` does."""
+    hw = _hardware(scene)
+    t0 = time.perf_counter()
+    q = meas.servo_mm * 1e-3
+    tau = np.zeros((1, scene.robot.n_tendons))
+    sols, retried, prev = [], np.zeros(len(meas), dtype=bool), None
+    for i in range(len(meas)):
+        if i and meas.source[i] != meas.source[i - 1]:
+            prev = None
+        sol = solve_static(scene.robot, tau, displacements=q[i:i + 1], options=scene.options, device=device,
+                           history=prev, **overrides)
+        if not sol.converged[0] and prev is not None:
+            retried[i] = True
+            sol = solve_static(scene.robot, tau, displacements=q[i:i + 1], options=scene.options, device=device,
+                               **overrides)
+        prev = sol if sol.converged[0] else None
+        sols.append(sol)
+        if progress and (i + 1) % PROGRESS_ROWS == 0:
+            progress(i + 1, len(meas))
+    return _predicted(hw, meas, StaticSolution.joined(sols), retried, time.perf_counter() - t0)
 
 
 def metrics(error_mm: np.ndarray, converged: np.ndarray, length_m: float) -> dict:

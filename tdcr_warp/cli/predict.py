@@ -35,13 +35,16 @@ def add_data_argument(p) -> None:
 def register(subparsers) -> None:
     p = add_command(subparsers, "predict", "predict measured tips (a scene with [hardware], a keypoint CSV)", run)
     add_data_argument(p)
+    p.add_argument("--recorded-order", action="store_true",
+                   help="solve the rows one by one as recorded, each from the last (friction's stick-slip "
+                        "memory: hysteresis; tdcr_warp.apps.hardware.predict_recorded) instead of one batch")
     add_solver_arguments(p)
     add_log_arguments(p)
 
 
 def run(args) -> int:
     """Predict measured tips of a scene with a [hardware] table (tdcr_warp.apps.hardware)."""
-    from tdcr_warp.apps.hardware import metrics, predict, read_measurements
+    from tdcr_warp.apps.hardware import metrics, predict, predict_recorded, read_measurements
     from tdcr_warp.io.plotting import plot_prediction
     from tdcr_warp.io.scene import load_scene
 
@@ -51,10 +54,15 @@ def run(args) -> int:
     meas = read_measurements(args.data, scene.hardware["servo_columns"])
     out = out_dir(args, Path("out") / Path(args.scene).stem, "metrics.json")
     load_s = load_kernels(scene, args)
-    pred = predict(scene, meas, device=args.device)
+    if args.recorded_order:
+        pred = predict_recorded(scene, meas, device=args.device,
+                                progress=lambda i, n: print(f"  {i} of {n} rows", flush=True))
+    else:
+        pred = predict(scene, meas, device=args.device)
     m = metrics(pred["error_mm"], pred["converged"], float(np.max(scene.robot.length)))
+    how = "one row at a time, as recorded" if args.recorded_order else "one batched solve"
     print(f"predicted {len(meas)} rows in {pred['wall_s']:.2f} s ({1e3 * pred['wall_s'] / len(meas):.2f} ms per row, "
-          f"one batched solve; kernel loading excluded): RMSE {m['rmse_mm']:.2f} mm, "
+          f"{how}; kernel loading excluded): RMSE {m['rmse_mm']:.2f} mm, "
           f"aligned {m['rmse_aligned_mm']:.2f} mm, "
           f"median {m['median_mm']:.2f} mm, p95 {m['p95_mm']:.2f} mm, {m['converged']} of {m['rows']} converged"
           + (f", {int(pred['unstable'].sum())} of them on unstable equilibria" if pred["unstable"].any() else ""))
@@ -64,6 +72,7 @@ def run(args) -> int:
                                           "scene": str(args.scene), "data": [str(d) for d in args.data],
                                           "wall_time_s": pred["wall_s"], "kernel_load_s": load_s,
                                           "ms_per_row": 1e3 * pred["wall_s"] / len(meas),
+                                          "recorded_order": bool(args.recorded_order),
                                           "units": PREDICT_UNITS,
                                           "settings": settings(scene, args.device or "default")})
     print(f"wrote {out}/metrics.json, predictions.csv, predict.png")

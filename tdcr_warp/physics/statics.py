@@ -161,6 +161,11 @@ class StaticSolution:
         """The rods ``index`` (indices or a mask) of this solution, e.g. a warm start for a sub-batch."""
         return replace(self, **{k: getattr(self, k)[index] for k in self._batched()})
 
+    @staticmethod
+    def joined(parts: list["StaticSolution"]) -> "StaticSolution":
+        """The rods of ``parts`` (solutions of one robot and solver options) in order, as one solution."""
+        return replace(parts[0], **{k: np.concatenate([getattr(p, k) for p in parts]) for k in parts[0]._batched()})
+
     def replaced(self, index: np.ndarray, other: "StaticSolution") -> "StaticSolution":
         """This solution with its rods ``index`` (indices) replaced by the rods of ``other``, in order."""
         out = {}
