@@ -21,10 +21,15 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import ROOT, metadata, write_report  # noqa: E402
+from _common import ROOT, metadata, write_report
 
-from tdcr_warp.apps.hardware import metrics, predict, predict_recorded, read_measurements  # noqa: E402
-from tdcr_warp.io.scene import scene_from_dict  # noqa: E402
+from tdcr_warp.apps.hardware import (
+    metrics,
+    predict,
+    predict_recorded,
+    read_measurements,
+)
+from tdcr_warp.io.scene import scene_from_dict
 
 DATA = Path(os.environ.get("TDCR_HARDWARE_DATA", ROOT.parent / "shared" / "validation" / "ocm_ftdcr"))
 

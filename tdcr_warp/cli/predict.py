@@ -44,7 +44,12 @@ def register(subparsers) -> None:
 
 def run(args) -> int:
     """Predict measured tips of a scene with a [hardware] table (tdcr_warp.apps.hardware)."""
-    from tdcr_warp.apps.hardware import metrics, predict, predict_recorded, read_measurements
+    from tdcr_warp.apps.hardware import (
+        metrics,
+        predict,
+        predict_recorded,
+        read_measurements,
+    )
     from tdcr_warp.io.plotting import plot_prediction
     from tdcr_warp.io.scene import load_scene
 
