@@ -9,6 +9,8 @@ import subprocess
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+# opencr-mujoco's training files of the real robots (v4_train.csv, v6_train.csv): not shipped here
+HARDWARE_DATA = Path(os.environ.get("TDCR_HARDWARE_DATA", ROOT.parent / "shared" / "validation" / "ocm_ftdcr"))
 
 
 def metadata(device: str, **extra) -> dict:
@@ -16,6 +18,19 @@ def metadata(device: str, **extra) -> dict:
     git = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True)
     return {"warp": __import__("warp").__version__, "python": platform.python_version(), "device": device,
             "cpus": os.cpu_count(), "git": git.stdout.strip(), **extra}
+
+
+def add_hardware_data_argument(ap) -> None:
+    ap.add_argument("--data", type=Path, default=HARDWARE_DATA, help="folder of v4_train.csv, v6_train.csv")
+
+
+def no_hardware_data(data: Path, out) -> bool:
+    """Whether the real robots' data are missing (then said, and a report saying so written)."""
+    if data.exists():
+        return False
+    print(f"no data at {data}: nothing to do")
+    write_report(out, {"meta": metadata("cpu"), "skipped": f"no data at {data}"})
+    return True
 
 
 def write_report(path, report: dict) -> None:

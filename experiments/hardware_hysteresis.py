@@ -13,7 +13,6 @@ friction). Writes results/hardware_hysteresis.json.
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 import tomllib
 from pathlib import Path
@@ -21,7 +20,13 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import ROOT, metadata, write_report
+from _common import (
+    ROOT,
+    add_hardware_data_argument,
+    metadata,
+    no_hardware_data,
+    write_report,
+)
 
 from tdcr_warp.apps.hardware import (
     metrics,
@@ -30,8 +35,6 @@ from tdcr_warp.apps.hardware import (
     read_measurements,
 )
 from tdcr_warp.io.scene import scene_from_dict
-
-DATA = Path(os.environ.get("TDCR_HARDWARE_DATA", ROOT.parent / "shared" / "validation" / "ocm_ftdcr"))
 
 
 def _row(pred: dict, L: float) -> dict:
@@ -60,15 +63,13 @@ def one_robot(name: str, mus: list[float], smoke: bool, data_dir: Path) -> dict:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--data", type=Path, default=DATA, help="folder of v4_train.csv, v6_train.csv")
+    add_hardware_data_argument(ap)
     ap.add_argument("--robots", nargs="+", default=["v4", "v6"])
     ap.add_argument("--mu", nargs="+", type=float, default=[0.0, 0.05, 0.1, 0.2])
     ap.add_argument("--smoke", action="store_true", help="40 rows of v4, mu 0 and 0.1 (for the test suite)")
     ap.add_argument("--out", default=str(ROOT / "results" / "hardware_hysteresis.json"))
     args = ap.parse_args(argv)
-    if not args.data.exists():
-        print(f"no data at {args.data}: nothing to do")
-        write_report(args.out, {"meta": metadata("cpu"), "skipped": f"no data at {args.data}"})
+    if no_hardware_data(args.data, args.out):
         return 0
     robots, mus = (["v4"], [0.0, 0.1]) if args.smoke else (args.robots, args.mu)
     report = {"meta": metadata("cpu", command=" ".join(sys.argv))}

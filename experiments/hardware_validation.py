@@ -13,7 +13,6 @@ results/hardware_validation.json.
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 import time
 import tomllib
@@ -23,13 +22,25 @@ import numpy as np
 import tomli_w
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import ROOT, metadata, write_report  # noqa: E402
+from _common import (
+    HARDWARE_DATA,
+    ROOT,
+    add_hardware_data_argument,
+    metadata,
+    no_hardware_data,
+    write_report,
+)
 
-from tdcr_warp.apps.hardware import fit, metrics, pattern_folds, predict, read_measurements  # noqa: E402
-from tdcr_warp.io.scene import scene_from_dict  # noqa: E402
-from tdcr_warp.model.robot import InputError  # noqa: E402
+from tdcr_warp.apps.hardware import (
+    fit,
+    metrics,
+    pattern_folds,
+    predict,
+    read_measurements,
+)
+from tdcr_warp.io.scene import scene_from_dict
+from tdcr_warp.model.robot import InputError
 
-DATA = Path(os.environ.get("TDCR_HARDWARE_DATA", ROOT.parent / "shared" / "validation" / "ocm_ftdcr"))
 FOLDS = 5
 RUNGS = {"coupled cosserat (fitted)": {}, "coupled kirchhoff": {"rod": "kirchhoff"},
          "point cosserat": {"model": "point"}, "coupled cosserat N = 8": {"nodes": 8},
@@ -41,7 +52,7 @@ def _summary(m: dict) -> dict:
                               "converged", "rows")}
 
 
-def one_robot(name: str, scenes: bool, smoke: bool, data_dir: Path = DATA) -> dict:
+def one_robot(name: str, scenes: bool, smoke: bool, data_dir: Path = HARDWARE_DATA) -> dict:
     nominal = ROOT / "examples" / "hardware" / f"ftdcr_{name}_nominal.toml"
     data = tomllib.loads(nominal.read_text())
     cols = data["hardware"]["servo_columns"]
@@ -118,15 +129,13 @@ def one_robot(name: str, scenes: bool, smoke: bool, data_dir: Path = DATA) -> di
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--data", type=Path, default=DATA, help="folder of v4_train.csv, v6_train.csv")
+    add_hardware_data_argument(ap)
     ap.add_argument("--robots", nargs="+", default=["v4", "v6"])
     ap.add_argument("--no-scenes", action="store_true", help="do not write examples/hardware/ftdcr_*.toml")
     ap.add_argument("--smoke", action="store_true", help="40 rows, 2 iterations (for the test suite)")
     ap.add_argument("--out", default=str(ROOT / "results" / "hardware_validation.json"))
     args = ap.parse_args(argv)
-    if not args.data.exists():
-        print(f"no data at {args.data}: nothing to do")
-        write_report(args.out, {"meta": metadata("cpu"), "skipped": f"no data at {args.data}"})
+    if no_hardware_data(args.data, args.out):
         return 0
     report = {"meta": metadata("cpu", command=" ".join(sys.argv))}
     for name in args.robots:
