@@ -3,9 +3,10 @@ only, v4_train.csv and v6_train.csv from that project's data/sysid folder, which
 does not ship: --data DIR, or $TDCR_HARDWARE_DATA; without them the script says so and skips): calibrate on all training rows (the fitted scenes become
 examples/hardware/ftdcr_v4.toml and ftdcr_v6.toml), cross-validate without leaks (FOLDS folds of
 whole recorded patterns in consecutive blocks, tdcr_warp.apps.hardware.pattern_folds: fit on the
-others, predict the held-out block; the aligned RMSE pooled over folds and each fold's), and compare the
-model rungs on the fitted scenes (error and time per rung on all training rows). Writes
-results/hardware_validation.json.
+others, predict the held-out block; the aligned RMSE pooled over folds and each fold's), compare the
+model rungs on the same held-out rows (each fold's fitted parameters in each rung's physics or
+discretisation; error and time per row), and draw the held-out error by pattern
+(docs/figures/ftdcr_<robot>_cv_patterns.png). Writes results/hardware_validation.json.
 
     python experiments/hardware_validation.py [--data DIR] [--robots v4 v6] [--no-scenes] [--smoke] [--out FILE]
 """
@@ -42,6 +43,7 @@ from tdcr_warp.io.scene import scene_from_dict
 from tdcr_warp.model.robot import InputError
 
 FOLDS = 5
+BASE = "coupled cosserat (fitted)"
 RUNGS = {"coupled cosserat (fitted)": {}, "coupled kirchhoff": {"rod": "kirchhoff"},
          "point cosserat": {"model": "point"}, "coupled cosserat N = 8": {"nodes": 8},
          "coupled cosserat, friction mu = 0.1": "friction", "constant curvature": {"model": "constant_curvature"}}
@@ -50,6 +52,103 @@ RUNGS = {"coupled cosserat (fitted)": {}, "coupled kirchhoff": {"rod": "kirchhof
 def _summary(m: dict) -> dict:
     return {k: m[k] for k in ("rmse_mm", "rmse_aligned_mm", "median_mm", "p95_mm", "rmse_percent_of_length",
                               "converged", "rows")}
+
+
+def _pooled(parts: list[dict]) -> dict:
+    """The RMSE (as is and aligned within each fold) over all converged held-out rows of the folds,
+    and the aligned RMSE of each fold."""
+    rows = np.array([p["converged"] for p in parts])
+    some = rows > 0  # a fold where nothing converged has no error to pool (it counts as unconverged)
+    pool = {k: float(np.sqrt(np.sum(rows[some] * np.array([p[k] for p in parts])[some] ** 2) / rows.sum()))
+            if rows.sum() else float("nan") for k in ("rmse_mm", "rmse_aligned_mm")}
+    return pool | {"folds_aligned_mm": [p["rmse_aligned_mm"] for p in parts], "converged": int(rows.sum()),
+                   "rows": int(sum(p["rows"] for p in parts))}
+
+
+def _rung_scene(fitted: dict, over) -> dict:
+    d = tomllib.loads(tomli_w.dumps(fitted))
+    if over == "friction":
+        for t in d["tendons"]:
+            t["friction"] = 0.1
+        over = {}
+    d["solver"] = d.get("solver", {}) | over
+    return d
+
+
+def cross_validate(name: str, data: dict, meas, smoke: bool) -> tuple[dict, dict]:
+    """Leak-free cross-validation (FOLDS blocks of whole patterns, pattern_folds): fit on the other
+    blocks, predict the held-out one, for the fitted model and for every rung of RUNGS (the same
+    fold's fitted parameters, the rung's physics or discretisation). Returns the cross-validation
+    (pooled and per fold) and the rungs (pooled held-out RMSE, time per row); draws the held-out
+    error by pattern into docs/figures/ftdcr_<name>_cv_patterns.png."""
+    L = data["robot"]["length"]
+    fold = pattern_folds(meas.labels, 2 if smoke else FOLDS)
+    parts, per_rung, errors = [], {r: [] for r in RUNGS}, np.full((len(meas), 3), np.nan)
+    times = {r: [0.0, 0] for r in RUNGS}
+    for k in range(fold.max() + 1):
+        test = np.flatnonzero(fold == k)
+        fk = fit(data, meas.subset(np.flatnonzero(fold != k)), max_iter=2 if smoke else 30)
+        held = meas.subset(test)
+        for rung, over in RUNGS.items():
+            try:
+                sc = scene_from_dict(_rung_scene(fk["scene"], over))
+                predict(sc, held.subset(np.arange(min(4, len(held)))))  # kernels loaded
+                p = predict(sc, held)
+            except InputError as e:
+                per_rung[rung] = str(e)
+                continue
+            m = _summary(metrics(p["error_mm"], p["converged"], L))
+            if isinstance(per_rung[rung], list):
+                per_rung[rung].append(m)
+            times[rung][0] += p["wall_s"]
+            times[rung][1] += len(held)
+            if rung == BASE:
+                errors[test] = np.where(p["converged"][:, None], p["error_mm"] - p["error_mm"][p["converged"]].mean(0),
+                                        np.nan)
+                parts.append(m | {"patterns": sorted({str(v).removesuffix("_hold") for v in held.labels}),
+                                  "fit_s": fk["report"]["wall_s"]})
+    cv = _pooled(parts) | {"folds": parts, "split": "whole patterns, consecutive blocks (pattern_folds)"}
+    print(f"  cross-validated ({len(parts)} folds of whole patterns): RMSE {cv['rmse_mm']:.2f} mm "
+          f"({100 * cv['rmse_mm'] / (1e3 * L):.2f}% of L), aligned {cv['rmse_aligned_mm']:.2f} mm (folds "
+          + ", ".join(f"{a:.2f}" for a in cv["folds_aligned_mm"]) + ")")
+    rungs = {}
+    for rung, got in per_rung.items():
+        if isinstance(got, str):
+            rungs[rung] = {"available": False, "reason": got}
+            print(f"  {rung:38s} n/a: {got}")
+            continue
+        rungs[rung] = _pooled(got) | {"ms_per_row": 1e3 * times[rung][0] / max(times[rung][1], 1)}
+        r = rungs[rung]
+        print(f"  {rung:38s} held out: aligned {r['rmse_aligned_mm']:6.2f} mm, RMSE {r['rmse_mm']:6.2f} mm, "
+              f"{r['converged']}/{r['rows']} converged, {r['ms_per_row']:.2f} ms per row")
+    if not smoke:
+        plot_patterns(meas.labels, errors, ROOT / "docs" / "figures" / f"ftdcr_{name}_cv_patterns.png", name)
+    return cv, rungs
+
+
+def plot_patterns(labels: np.ndarray, errors: np.ndarray, path: Path, name: str) -> None:
+    """Held-out aligned error [mm] by pattern family (the label without its repetition, direction,
+    circle and hold parts): RMSE bars, with the number of rows."""
+    import re
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    family = np.array([re.sub(r"^rep\d+_|_hold$|_dir\d+|_circle|_id\d+", "", str(v)) for v in labels])
+    names = list(dict.fromkeys(family))
+    d = np.linalg.norm(errors, axis=1)
+    rmse = [float(np.sqrt(np.nanmean(d[family == f] ** 2))) for f in names]
+    fig, ax = plt.subplots(figsize=(7, 0.28 * len(names) + 1.2))
+    ax.barh(range(len(names)), rmse, color="tab:blue")
+    ax.set_yticks(range(len(names)), [f"{f} ({int((family == f).sum())})" for f in names], fontsize=8)
+    ax.invert_yaxis()
+    ax.set_xlabel("held-out tip error, aligned RMSE [mm]")
+    ax.set_title(f"{name}: error by recorded pattern (5 folds of whole patterns)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
 
 
 def one_robot(name: str, scenes: bool, smoke: bool, data_dir: Path = HARDWARE_DATA) -> dict:
@@ -83,47 +182,7 @@ def one_robot(name: str, scenes: bool, smoke: bool, data_dir: Path = HARDWARE_DA
                   f"# github ContinuumRoboticsLab/opencr-mujoco): training RMSE {tr['rmse_mm']:.2f} mm, aligned "
                   f"{tr['rmse_aligned_mm']:.2f} mm.\n# Predict new keypoints: tdcr-warp predict {target.relative_to(ROOT)} NEW.csv\n")
         target.write_text(header + tomli_w.dumps(res["scene"]))
-    fold = pattern_folds(meas.labels, 2 if smoke else FOLDS)
-    folds = []
-    for k in range(fold.max() + 1):
-        test = fold == k
-        fk = fit(data, meas.subset(np.flatnonzero(~test)), max_iter=2 if smoke else 30)
-        pk = predict(scene_from_dict(fk["scene"]), meas.subset(np.flatnonzero(test)))
-        patterns = sorted({str(v).removesuffix("_hold") for v in meas.labels[test]})
-        folds.append(_summary(metrics(pk["error_mm"], pk["converged"], L)) | {"patterns": patterns,
-                                                                              "fit_s": fk["report"]["wall_s"]})
-    aligned = np.array([f["rmse_aligned_mm"] for f in folds])
-    rows = np.array([f["rows"] for f in folds])
-    out["cross_validation"] = {"folds": folds, "split": "whole patterns, consecutive blocks (pattern_folds)",
-                               "rmse_mm": float(np.sqrt(np.sum(rows * [f["rmse_mm"] ** 2 for f in folds]) / rows.sum())),
-                               "rmse_aligned_mm": float(np.sqrt(np.sum(rows * aligned**2) / rows.sum())),
-                               "aligned_min_mm": float(aligned.min()), "aligned_max_mm": float(aligned.max())}
-    cv = out["cross_validation"]
-    print(f"  cross-validated ({len(folds)} folds of whole patterns): RMSE {cv['rmse_mm']:.2f} mm "
-          f"({100 * cv['rmse_mm'] / (1e3 * L):.2f}% of L), aligned {cv['rmse_aligned_mm']:.2f} mm (folds "
-          + ", ".join(f"{a:.2f}" for a in aligned) + ")")
-    rungs = {}
-    fitted = res["scene"]
-    for rung, over in RUNGS.items():
-        d = tomllib.loads(tomli_w.dumps(fitted))
-        if over == "friction":
-            for t in d["tendons"]:
-                t["friction"] = 0.1
-            over = {}
-        d["solver"] = d.get("solver", {}) | over
-        try:
-            sc = scene_from_dict(d)
-            predict(sc, meas.subset(np.arange(min(8, len(meas)))))  # kernels loaded
-            p = predict(sc, meas)
-        except InputError as e:
-            rungs[rung] = {"available": False, "reason": str(e)}
-            print(f"  {rung:38s} n/a: {e}")
-            continue
-        m = metrics(p["error_mm"], p["converged"], L)
-        rungs[rung] = _summary(m) | {"ms_per_row": 1e3 * p["wall_s"] / len(meas)}
-        print(f"  {rung:38s} RMSE {m['rmse_mm']:6.2f} mm, aligned {m['rmse_aligned_mm']:6.2f} mm, "
-              f"{m['converged']}/{m['rows']} converged, {1e3 * p['wall_s'] / len(meas):.2f} ms per row")
-    out["rungs"] = rungs
+    out["cross_validation"], out["rungs"] = cross_validate(name, data, meas, smoke)
     return out
 
 
