@@ -95,7 +95,7 @@ def test_fit_jacobian_matches_central_differences_of_full_solves():
     spec = hw._parameter_spec(data, "tendon")
     p = np.array([sp["value"] for sp in spec])
     lo, hi = (np.array([sp[k] for sp in spec]) for k in ("lo", "hi"))
-    cur = predict(scene_from_dict(hw._apply(data, spec, p)), meas, parameters=hw._jacobian_names(spec), tol=1e-12)
+    cur = predict(scene_from_dict(hw._apply(data, spec, p)), meas, parameters=hw._jacobian_names(data), tol=1e-12)
     assert cur["converged"].all() and not cur["slack"].any()
     J = hw._fit_jacobian(data, spec, p, cur, np.arange(7), lo, hi)
     for j, sp in enumerate(spec):

@@ -323,11 +323,10 @@ def _grid_angle(data: dict, spec: list[dict], p: np.ndarray, angles: np.ndarray,
     return best
 
 
-def _jacobian_names(spec: list[dict]) -> list[str]:
+def _jacobian_names(data: dict) -> list[str]:
     """The robot parameters whose tip Jacobians (solve_static ``parameters``) the fit's columns are
     made of: every tendon's compliance and angle (a pretension moves only the reference state)."""
-    K = 1 + max(k for sp in spec if sp["kind"] != "offset" for k in sp["on"])
-    return [f"tendons[{k}].{f}" for f in ("compliance", "angle") for k in range(K)]
+    return [f"tendons[{k}].{f}" for f in ("compliance", "angle") for k in range(len(data["tendons"]))]
 
 
 def _reference_rates(data: dict, spec: list[dict], p: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
@@ -355,7 +354,7 @@ def _fit_jacobian(data: dict, spec: list[dict], p: np.ndarray, cur: dict, rows: 
     reference state, which sets those lengths (avail = reference - q: minus ``tip_jacobian`` times
     ``_reference_rates``); the base offset's columns are the identity. No solve is repeated."""
     sol = cur["solution"]
-    names = _jacobian_names(spec)
+    names = _jacobian_names(data)
     PJ, TJ = sol.parameter_jacobian[rows, :3], sol.tip_jacobian[rows, :3]
     J = np.zeros((len(rows), 3, len(p)))
     J -= np.einsum("bik,kj->bij", TJ, _reference_rates(data, spec, p, lo, hi))
@@ -398,13 +397,14 @@ def fit(data: dict, meas: Measurements, *, detail: str = "tendon", max_iter: int
 
         def evaluate(q, warm=None, part=part):
             out = predict(scene_from_dict(_apply(base_data, spec, q)), part, device=device, initial=warm,
-                          parameters=_jacobian_names(spec))
+                          parameters=_jacobian_names(base_data))
             ok = out["converged"] & np.isfinite(out["solution"].parameter_jacobian).all(axis=(1, 2))
             out["rows"] = np.flatnonzero(ok)
-            out["jacobian"] = _fit_jacobian(base_data, spec, q, out, out["rows"], lo, hi)
             return out
 
-        p, cur, n = _levenberg_marquardt(evaluate, p, warm, lo, hi, max_iter - its, history, progress,
+        p, cur, n = _levenberg_marquardt(evaluate, lambda q, out: _fit_jacobian(base_data, spec, q, out, out["rows"],
+                                                                                lo, hi),
+                                         p, warm, lo, hi, max_iter - its, history, progress,
                                          COARSE_RTOL if part is not meas else FIT_RTOL)
         its += n
     J, r = cur["jacobian"], cur["error_mm"][cur["rows"]].ravel() * 1e-3
@@ -421,23 +421,26 @@ def fit(data: dict, meas: Measurements, *, detail: str = "tendon", max_iter: int
     return {"scene": fitted, "report": report, "prediction": cur}
 
 
-def _levenberg_marquardt(evaluate, p: np.ndarray, warm, lo: np.ndarray, hi: np.ndarray, max_iter: int,
+def _levenberg_marquardt(evaluate, jacobian, p: np.ndarray, warm, lo: np.ndarray, hi: np.ndarray, max_iter: int,
                          history: list, progress, rtol: float) -> tuple[np.ndarray, dict, int]:
     """Levenberg-Marquardt (Marquardt's scaling, lambda from LM_LAMBDA0, /3 on success, x4 on
     failure) from p within [lo, hi] on ``evaluate(q, warm)``'s residual ``error_mm`` over its
-    ``rows`` and its ``jacobian`` (the first evaluation warm-started from ``warm`` or None); a trial is accepted if it converges on as many rows and lowers
-    the cost. Stops when a step fails 8 times, the cost falls by less than ``rtol``, or after
-    max_iter iterations. Appends to ``history``; returns (p, its evaluation, iterations)."""
+    ``rows`` (the first evaluation warm-started from ``warm`` or None), with the Jacobian
+    ``jacobian(q, evaluation)`` made at accepted points only (kept as the evaluation's
+    ``jacobian``). A trial is accepted if it converges on as many rows and lowers the cost. Stops
+    when a step fails 8 times, the cost falls by less than ``rtol``, or after max_iter iterations.
+    Appends to ``history``; returns (p, its evaluation, iterations)."""
     cur = evaluate(p, warm)
+    cur["jacobian"] = jacobian(p, cur)
     lam, it = LM_LAMBDA0, 0
     for it in range(1, max_iter + 1):
         rows, J = cur["rows"], cur["jacobian"]
         r = cur["error_mm"][rows].ravel() * 1e-3
         cost = float(r @ r)
+        A, g = J.T @ J, -J.T @ r
         accepted = False
         for _ in range(8):
-            A = J.T @ J
-            dp = np.linalg.solve(A + lam * np.diag(np.diag(A) + 1e-30), -J.T @ r)
+            dp = np.linalg.solve(A + lam * np.diag(np.diag(A) + 1e-30), g)
             q = np.clip(p + dp, lo, hi)
             trial = evaluate(q, cur["solution"])
             rt = trial["error_mm"][np.intersect1d(rows, trial["rows"])].ravel() * 1e-3
@@ -452,6 +455,7 @@ def _levenberg_marquardt(evaluate, p: np.ndarray, warm, lo: np.ndarray, hi: np.n
             progress(history[-1])
         if not accepted:
             break
+        cur["jacobian"] = jacobian(p, cur)
         new_cost = float(np.sum(cur["error_mm"][cur["rows"]] ** 2)) * 1e-6
         if np.abs(dp).max() < 1e-7 or cost - new_cost < rtol * cost:  # the cost has stopped falling
             break
