@@ -335,3 +335,19 @@ def test_bad_command_lines_exit_2(argv):
     with pytest.raises(SystemExit) as e:
         main(argv)
     assert e.value.code == 2
+
+
+def test_a_rod_failing_on_a_non_finite_state_is_reported_not_drawn(tmp_path, capsys):
+    """A 53 m rod under 1 N ends on a non-finite state (found by the hostile scenes): the figure and
+    the viewer are skipped with a line saying why, the results are written, no traceback."""
+    scene = {"robot": {"length": 53.0, "youngs_modulus": 190e9, "poisson_ratio": 0.3, "radius": 0.001,
+                       "density": 7800.0},
+             "tendons": [{"offset": [0.01, 0.0]}], "actuation": {"tensions": [[1.0]]}, "solver": {"nodes": 10}}
+    path = tmp_path / "long.toml"
+    path.write_text(_to_toml(scene))
+    out = tmp_path / "out"
+    assert main(["static", str(path), "--out", str(out), "--html"]) == 1
+    cap = capsys.readouterr()
+    assert "Traceback" not in cap.err and "non-finite state" in cap.err
+    assert "shapes.png not drawn" in cap.out and "robot.html not written" in cap.out
+    assert (out / "results.json").exists() and not (out / "shapes.png").exists()

@@ -66,8 +66,7 @@ def run(args) -> int:
     else:
         files[ROD_TABLE] = _write_rod_table(out / ROD_TABLE, scene, sol, reasons)
     write_s = time.perf_counter() - t0
-    if not args.no_figures:
-        _plot(scene, sol, out)
+    drawn = not args.no_figures and _plot(scene, sol, out)
     if args.html:
         _html(scene, sol, out)
     failed = ~sol.success  # not converged, or an unstable equilibrium
@@ -79,7 +78,7 @@ def run(args) -> int:
         "failure_reasons": dict(Counter(reasons[b] for b in np.flatnonzero(failed))), "files": files,
     } | (_rods_json(sol, reasons) if small else {})
     write_json(out / "results.json", results)  # last: its presence means the run is complete
-    print(f"wrote {out}/results.json, {', '.join(files)}{'' if args.no_figures else ', shapes.png'}")
+    print(f"wrote {out}/results.json, {', '.join(files)}{', shapes.png' if drawn else ''}")
     if failed.any():
         why = ", ".join(f"{n} x {reason}" for reason, n in results["failure_reasons"].items())
         print(f"tdcr-warp: {int(failed.sum())} of {B} rods did not converge or are unstable: {why} (per rod in "
@@ -166,22 +165,37 @@ def _tendon_rows(sol, b: int) -> list[dict]:
     return rows
 
 
-def _plot(scene, sol, out: Path) -> None:
-    """shapes.png: the first solved rods (tdcr_warp.io.plotting)."""
+def _plot(scene, sol, out: Path) -> bool:
+    """shapes.png: the first solved rods (tdcr_warp.io.plotting); whether it was drawn."""
     from tdcr_warp.io.drawing import robot_geometry
     from tdcr_warp.io.plotting import MAX_RODS_DRAWN, plot_robot
 
-    n = min(len(sol.converged), MAX_RODS_DRAWN)
+    n = _drawable(sol, MAX_RODS_DRAWN)
+    if n == 0:
+        print("shapes.png not drawn: the first rod has no finite shape")
+        return False
     geom = robot_geometry(scene.robot, sol.positions[:n], sol.rotations[:n], sol.s[:n], sol.tendon_tension_base[:n],
                           scene.display)
     plot_robot(geom, out / "shapes.png", converged=sol.converged[:n])
+    return True
+
+
+def _drawable(sol, most: int) -> int:
+    """How many of the first rods can be drawn: up to ``most``, ending before the first rod whose
+    shape is not finite (one that failed on a non-finite state)."""
+    n = min(len(sol.converged), most)
+    finite = np.isfinite(sol.positions[:n]).all(axis=(1, 2)) & np.isfinite(sol.rotations[:n]).all(axis=(1, 2, 3))
+    return n if finite.all() else int(np.argmin(finite))
 
 
 def _html(scene, sol, out: Path) -> None:
     """robot.html: the interactive viewer of the first solved rods (tdcr_warp.io.viewer)."""
     from tdcr_warp.io.viewer import MAX_RODS, write_viewer
 
-    n = min(len(sol.converged), MAX_RODS)
+    n = _drawable(sol, MAX_RODS)
+    if n == 0:
+        print("robot.html not written: the first rod has no finite shape")
+        return
     names = [f"rod {b}" + ("" if sol.converged[b] else " (not converged)") for b in range(n)]
     write_atomic(out / "robot.html", lambda tmp: write_viewer(
         tmp, scene.robot, sol.positions[:n], sol.rotations[:n], sol.s[:n], sol.tendon_tension_base[:n],
