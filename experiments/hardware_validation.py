@@ -46,7 +46,10 @@ FOLDS = 5
 BASE = "coupled cosserat (fitted)"
 RUNGS = {"coupled cosserat (fitted)": {}, "coupled kirchhoff": {"rod": "kirchhoff"},
          "point cosserat": {"model": "point"}, "coupled cosserat N = 8": {"nodes": 8},
-         "coupled cosserat, friction mu = 0.1": "friction", "constant curvature": {"model": "constant_curvature"}}
+         "coupled cosserat, friction mu = 0.1": "friction", "constant curvature": {"model": "constant_curvature"},
+         "disks cosserat (one per link)": "disks"}
+# opencr-mujoco's links per segment (data/sysid/v*_robot.json, links_per_segment): a spacer disk at the end of each
+LINKS = {"v4": (10, 10, 10), "v6": (15, 15, 8)}
 
 
 def _summary(m: dict) -> dict:
@@ -65,12 +68,17 @@ def _pooled(parts: list[dict]) -> dict:
                    "rows": int(sum(p["rows"] for p in parts))}
 
 
-def _rung_scene(fitted: dict, over) -> dict:
+def _rung_scene(fitted: dict, over, name: str) -> dict:
     d = tomllib.loads(tomli_w.dumps(fitted))
     if over == "friction":
         for t in d["tendons"]:
             t["friction"] = 0.1
         over = {}
+    if over == "disks":  # the disks at the ends of the links, one RK4 step between two
+        ends = sorted({t["length"] for t in d["tendons"]})
+        d["robot"]["disks"] = [float(x) for a, b, c in zip([0.0, *ends[:-1]], ends, LINKS[name])
+                               for x in np.linspace(a, b, c + 1)[1:]]
+        over = {"model": "disks", "nodes": len(d["robot"]["disks"])}
     d["solver"] = d.get("solver", {}) | over
     return d
 
@@ -78,7 +86,8 @@ def _rung_scene(fitted: dict, over) -> dict:
 def cross_validate(name: str, data: dict, meas, smoke: bool) -> tuple[dict, dict]:
     """Leak-free cross-validation (FOLDS blocks of whole patterns, pattern_folds): fit on the other
     blocks, predict the held-out one, for the fitted model and for every rung of RUNGS (the same
-    fold's fitted parameters, the rung's physics or discretisation). Returns the cross-validation
+    fold's fitted parameters, the rung's physics or discretisation; the disk model warm-started
+    from the fitted model's solution of the same rows). Returns the cross-validation
     (pooled and per fold) and the rungs (pooled held-out RMSE, time per row); draws the held-out
     error by pattern into docs/figures/ftdcr_<name>_cv_patterns.png."""
     L = data["robot"]["length"]
@@ -91,9 +100,9 @@ def cross_validate(name: str, data: dict, meas, smoke: bool) -> tuple[dict, dict
         held = meas.subset(test)
         for rung, over in RUNGS.items():
             try:
-                sc = scene_from_dict(_rung_scene(fk["scene"], over))
+                sc = scene_from_dict(_rung_scene(fk["scene"], over, name))
                 predict(sc, held.subset(np.arange(min(4, len(held)))))  # kernels loaded
-                p = predict(sc, held)
+                p = predict(sc, held, initial=base["solution"] if over == "disks" else None)
             except InputError as e:
                 per_rung[rung] = str(e)
                 continue
@@ -103,6 +112,7 @@ def cross_validate(name: str, data: dict, meas, smoke: bool) -> tuple[dict, dict
             times[rung][0] += p["wall_s"]
             times[rung][1] += len(held)
             if rung == BASE:
+                base = p
                 errors[test] = np.where(p["converged"][:, None], p["error_mm"] - p["error_mm"][p["converged"]].mean(0),
                                         np.nan)
                 parts.append(m | {"patterns": sorted({str(v).removesuffix("_hold") for v in held.labels}),

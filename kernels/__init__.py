@@ -14,7 +14,7 @@ family's file and keyed only by what it needs; a feature a scene lacks compiles 
   tendon_route, tendon_tangent                   tendons.py    tendon routing
   coupled_tendon_load                            tendons.py    distributed tendon load (coupled model)
   tendon_end_loads, kink_loads                   tendons.py    tendon point loads at a node
-  tendon_rates                                   tendons.py    tendon states E and the friction load
+  tendon_rates, chord_rates                      tendons.py    tendon states E and the friction load
   base_tensions, length_residuals                tendons.py    displacement control
   tensions, tension_of, blend                    friction.py   capstan friction, stick-slip
   slip_state, store_profile, store_node_profile  friction.py   the tension profile a step keeps
@@ -22,9 +22,14 @@ family's file and keyed only by what it needs; a feature a scene lacks compiles 
   damped_system                                  inertia.py    strain-rate damping in the (v', u') system
   kirchhoff_solve, cosserat_solve,               rod.py        (v', u') and the tendon load
     coupled_rates, point_rates
-  rhs, node_busy, span_end, node_jumps           rod.py        d/ds of the state; the jumps at a node
-  stage_c, stage_w, orthonormalize, orth_error   integration.py  explicit Runge-Kutta, R a rotation
-  interval, shoot, tip_residual, Nodes           integration.py  base to tip: the shooting residual
+  rhs, point_jumps                               rod.py        d/ds of the state; point forces at a node
+  stage_c, stage_w, orthonormalize, orth_error,  stepping.py   explicit Runge-Kutta, R a rotation
+    interval
+  disk_jumps                                     disks.py      spacer disks: chords between holes,
+                                                               their pull at each disk (look-ahead)
+  node_busy, span_end, node_jumps,               nodes.py      the jumps at a node; one variant's
+    make_rod_funcs                                             rod functions gathered
+  shoot, tip_residual, Nodes                     integration.py  base to tip: the shooting residual
   Newton, begin, update, solve_dense, ...        newton.py     damped (quasi-)Newton per rod
   totals, column, phases, track, sweep,          jacobi.py     the stability verdict: Jacobi fields
     verdict, asymmetry, the verdict kernel                     of the solution and their phases

@@ -1,8 +1,5 @@
 """Integration of the rod ODE from base to tip: the shooting residual of a trial point.
 
-  stage_c / stage_w    where an explicit Runge-Kutta stage is evaluated and its weight
-  orthonormalize       one Newton-Schulz step of R toward the nearest rotation
-  interval             one integration step over an interval (all of its stages)
   shoot                base to tip from the unknowns x: the residual and the tip pose
   tip_residual         the scaled residual at the tip (and of the displaced tendons)
   Nodes, store_node    the shape a solve keeps: the state at every node
@@ -31,58 +28,13 @@ from .layout import (
     TO_PATH,
     TO_TURN,
 )
-from .rod import make_rod_funcs
+from .nodes import make_rod_funcs
+from .stepping import make_interval, make_stages
 from .structs import make_rows, make_structs, tendon_vectors
 from .tendons import make_displacement
 from .variants import STAGES, Features
 
 N_BASE = 6  # n(0), m(0); + one tension per displacement-controlled tendon
-
-
-@functools.cache
-def make_stages(dtype, integrator: str):
-    """The explicit Runge-Kutta scheme (Euler, midpoint, RK4), and keeping R a rotation."""
-    zero = dtype(0.0)
-    half = dtype(0.5)
-    sixth = dtype(1.0 / 6.0)
-    third = dtype(1.0 / 3.0)  # from Python: a literal inside a kernel would be float32
-    mat33 = wp.types.matrix((3, 3), dtype)
-    rk4 = integrator == "rk4"
-    midpoint = integrator == "midpoint"
-
-    @wp.func
-    def stage_c(st: int):
-        """Where stage st is evaluated, as a fraction of the interval."""
-        if wp.static(rk4):
-            return wp.where(st == 0, zero, wp.where(st == 3, dtype(1.0), half))
-        if wp.static(midpoint):
-            return wp.where(st == 0, zero, half)
-        return zero
-
-    @wp.func
-    def stage_w(st: int):
-        """The weight of stage st (RK4: 1/6, 1/3, 1/3, 1/6; midpoint: 0, 1; Euler: 1)."""
-        if wp.static(rk4):
-            return wp.where(st == 0 or st == 3, sixth, third)
-        if wp.static(midpoint):
-            return wp.where(st == 0, zero, dtype(1.0))
-        return dtype(1.0)
-
-    @wp.func
-    def orthonormalize(R: mat33):
-        """One Newton-Schulz step towards the nearest rotation: squares the drift."""
-        return dtype(1.5) * R - dtype(0.5) * (R * (wp.transpose(R) * R))
-
-    @wp.func
-    def orth_error(R: mat33, orth: dtype):
-        """max(orth, max |R^T R - I|)."""
-        dev = wp.transpose(R) * R - wp.identity(3, dtype)
-        for i in range(3):
-            for j in range(3):
-                orth = wp.max(orth, wp.abs(dev[i, j]))
-        return orth
-
-    return SimpleNamespace(stage_c=stage_c, stage_w=stage_w, orthonormalize=orthonormalize, orth_error=orth_error)
 
 
 @functools.cache
@@ -160,7 +112,8 @@ def make_tendon_outputs(dtype, dynamic: bool, tendons: int, friction: bool):
                 out.tend[b, kk, TO_BASE] = t0[kk]
                 out.tend[b, kk, TO_PATH] = E[K + kk]
                 out.tend[b, kk, TO_FREE] = E[2 * K + kk]
-                out.tend[b, kk, TO_TURN] = E[kk]
+                if wp.static(friction):  # (the disk model keeps its holes there)
+                    out.tend[b, kk, TO_TURN] = E[kk]
 
     return SimpleNamespace(store_tensions=store_tensions, store_end_tensions=store_end_tensions,
                            store_tendon_outputs=store_tendon_outputs)
@@ -200,69 +153,6 @@ def make_residual(dtype, dynamic: bool, tendons: int, displaced: int):
 
 
 @functools.cache
-def make_interval(dtype, integrator: str, model: str, dynamic: bool, rod: str, features: Features):
-    """``interval``: one step of the integrator over an interval."""
-    vec3 = wp.types.vector(3, dtype)
-    mat33 = wp.types.matrix((3, 3), dtype)
-    K = features.tendons
-    kvec, evec = tendon_vectors(dtype, K)
-    st = make_structs(dtype, dynamic)
-    Model, Control, Step = st.Model, st.Control, st.Step
-    rf = make_rod_funcs(dtype, model, dynamic, rod, features)
-    sc = make_stages(dtype, integrator)
-    stages = STAGES[integrator]
-
-    @wp.func
-    def interval(md: Model, ct: Control, sp: Step, b: int, s: dtype, h: dtype, p: vec3, R: mat33, n: vec3, m: vec3,
-                 q: vec3, w: vec3, t0: kvec, E: evec, k: int, store: int):
-        """The state at s + h from the state at s, the start of interval k: explicit stages, each
-        from the last, y_i = y + c_i h k_(i-1), y <- y + h sum_i w_i k_i, then R orthonormalized.
-        A runtime stage count keeps one call site of the right-hand side (compile time)."""
-        sl = k * stages
-        Ap = vec3()
-        AR = mat33()
-        An = vec3()
-        Am = vec3()
-        Aq = vec3()
-        Aw = vec3()
-        AE = evec()
-        kE = evec()
-        kp = vec3()
-        kR = mat33()
-        kn = vec3()
-        km = vec3()
-        kq = vec3()
-        kw = vec3()
-        for st in range(stages + 0 * k):
-            ch = sc.stage_c(st) * h
-            kp, kR, kn, km, kq, kw, kE = rf.rhs(md, ct, sp, b, s + ch, p + ch * kp, R + ch * kR, n + ch * kn,
-                                                m + ch * km, q + ch * kq, w + ch * kw, t0, E + ch * kE, k,
-                                                sl + st, store)
-            wt = sc.stage_w(st)
-            Ap += wt * kp
-            AR += wt * kR
-            An += wt * kn
-            Am += wt * km
-            if wp.static(dynamic):
-                Aq += wt * kq
-                Aw += wt * kw
-            if wp.static(K > 0):
-                AE += wt * kE
-        p = p + h * Ap
-        R = R + h * AR
-        n = n + h * An
-        m = m + h * Am
-        if wp.static(dynamic):
-            q = q + h * Aq
-            w = w + h * Aw
-        if wp.static(K > 0):
-            E = E + h * AE
-        return p, sc.orthonormalize(R), n, m, q, w, E
-
-    return SimpleNamespace(interval=interval)
-
-
-@functools.cache
 def make_shoot(dtype, integrator: str, model: str, dynamic: bool, rod: str, features: Features):
     """``shoot``: the residual of a trial point; ``residual_scale``: its scale to a length."""
     vec3 = wp.types.vector(3, dtype)
@@ -272,7 +162,7 @@ def make_shoot(dtype, integrator: str, model: str, dynamic: bool, rod: str, feat
     uvec = wp.types.vector(N_BASE + features.displaced, dtype)
     st = make_structs(dtype, dynamic)
     Model, Control, Step = st.Model, st.Control, st.Step
-    rf = make_rod_funcs(dtype, model, dynamic, rod, features)
+    rf = make_rod_funcs(dtype, integrator, model, dynamic, rod, features)
     nodes = make_nodes(dtype, dynamic, K > 0)
     Nodes, store_node = nodes.Nodes, nodes.store_node
     tout = make_tendon_outputs(dtype, dynamic, K, features.friction)
@@ -301,7 +191,7 @@ def make_shoot(dtype, integrator: str, model: str, dynamic: bool, rod: str, feat
         orth = zero
         if store != 0:
             store_node(out, b, 0, p, R, n, m, q, w)
-        n, m, E = rf.node_jumps(md, ct, sp, b, zero, R, n, m, q, w, t0, E, 0, jslot, jslot + 1, store)
+        n, m, E = rf.node_jumps(md, ct, sp, b, zero, p, R, n, m, q, w, t0, E, 0, jslot, jslot + 1, store)
         if store != 0:
             tout.store_tensions(md, ct, b, out, t0, E, 0, 0)
         k = int(0)
@@ -315,7 +205,7 @@ def make_shoot(dtype, integrator: str, model: str, dynamic: bool, rod: str, feat
             js = jslot + 2 * k1
             if store != 0:
                 tout.store_end_tensions(md, ct, b, out, t0, E, k1, js)
-            n, m, E = rf.node_jumps(md, ct, sp, b, md.grid[ig, k1], R, n, m, q, w, t0, E, k1, js, js + 1, store)
+            n, m, E = rf.node_jumps(md, ct, sp, b, md.grid[ig, k1], p, R, n, m, q, w, t0, E, k1, js, js + 1, store)
             if store != 0:  # the first stage of the next interval is just distal of node k1
                 tout.store_tensions(md, ct, b, out, t0, E, k1, wp.where(k1 < n_int, k1 * stages, js + 1))
             k = k1

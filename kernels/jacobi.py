@@ -29,9 +29,10 @@ import warp as wp
 
 from .dense6 import make_dense6
 from .drivers import module_names
-from .integration import N_BASE, make_interval, make_residual
+from .integration import N_BASE, make_residual
 from .layout import FORCE_SCALE, KBT, KSE, LENGTH, MOMENT_SCALE
-from .rod import make_rod_funcs
+from .nodes import make_rod_funcs
+from .stepping import make_interval
 from .strains import make_strains
 from .structs import make_rows, make_structs, tendon_vectors
 from .tendons import make_routes
@@ -286,14 +287,14 @@ def make_trajectory_state(dtype, tendons: int, displaced: int):
 
 
 @functools.cache
-def _shared(dtype, model: str, rod: str, features: Features) -> SimpleNamespace:
+def _shared(dtype, integrator: str, model: str, rod: str, features: Features) -> SimpleNamespace:
     """What the trajectory functions of one variant share: its types, structs and rod terms."""
     ts = make_trajectory_state(dtype, features.tendons, features.displaced)
     st = make_structs(dtype, False)
     return SimpleNamespace(vec3=wp.types.vector(3, dtype), nu=N_BASE + features.displaced, vec6=make_dense6(dtype).vec6,
                            vecu=ts.vecu, evec=tendon_vectors(dtype, features.tendons)[1], Model=st.Model,
                            Control=st.Control, Step=st.Step, Fields=ts.Fields, probe_x=ts.probe_x, keep=ts.keep,
-                           rf=make_rod_funcs(dtype, model, False, rod, features),
+                           rf=make_rod_funcs(dtype, integrator, model, False, rod, features),
                            fl=make_fields(dtype, model, rod, features))
 
 
@@ -302,7 +303,7 @@ def make_clamp(dtype, integrator: str, model: str, rod: str, features: Features)
     """``clamp``: every trajectory at s = 0; ``steps``: the probes' steps."""
     zero = dtype(0.0)
     one = dtype(1.0)
-    v = _shared(dtype, model, rod, features)
+    v = _shared(dtype, integrator, model, rod, features)
     vec3, nu, vec6, vecu, evec = v.vec3, v.nu, v.vec6, v.vecu, v.evec
     Model, Control, Step, Fields, probe_x, keep, rf, fl = v.Model, v.Control, v.Step, v.Fields, v.probe_x, v.keep, v.rf, v.fl
     stages = STAGES[integrator]  # times the intervals: the first slot of the jumps (kernels/integration.py)
@@ -328,7 +329,8 @@ def make_clamp(dtype, integrator: str, model: str, rod: str, features: Features)
             elif j <= 6:
                 _dp, _eta, dN, dM = fl.column(vec3(), R, N0, M0, vec3(), R, Nt, Mt, h[j - 1], sc)
                 colscale[j - 1] = one / wp.sqrt(wp.length_sq(dN) + wp.length_sq(dM))
-            n, m, E = rf.node_jumps(md, ct, sp, b, zero, R, n, m, vec3(), vec3(), t0, evec(), 0, jumps, jumps + 1, 0)
+            n, m, E = rf.node_jumps(md, ct, sp, b, zero, vec3(), R, n, m, vec3(), vec3(), t0, evec(), 0, jumps,
+                                    jumps + 1, 0)
             keep(fd, b, j, vec3(), R, n, m, E)
         return colscale
 
@@ -348,7 +350,7 @@ def make_clamp(dtype, integrator: str, model: str, rod: str, features: Features)
 @functools.cache
 def make_advance(dtype, integrator: str, model: str, rod: str, features: Features):
     """``advance``: every trajectory over the next interval, U and V at its end."""
-    v = _shared(dtype, model, rod, features)
+    v = _shared(dtype, integrator, model, rod, features)
     vec3, nu, vec6, vecu = v.vec3, v.nu, v.vec6, v.vecu
     Model, Control, Step, Fields, probe_x, keep, rf, fl = v.Model, v.Control, v.Step, v.Fields, v.probe_x, v.keep, v.rf, v.fl
     interval = make_interval(dtype, integrator, model, False, rod, features).interval
@@ -380,7 +382,7 @@ def make_advance(dtype, integrator: str, model: str, rod: str, features: Feature
                     cs = colscale[j - 1]
                     fl.put_column(fd.wk, b, j - 1, dp * cs, eta * cs, dN * cs, dM * cs)
             if at_node != 0:
-                n, m, E = rf.node_jumps(md, ct, sp, b, s1, R, n, m, vec3(), vec3(), t0, E, k1, js, js + 1, 0)
+                n, m, E = rf.node_jumps(md, ct, sp, b, s1, p, R, n, m, vec3(), vec3(), t0, E, k1, js, js + 1, 0)
             keep(fd, b, j, p, R, n, m, E)
 
     return advance
@@ -391,7 +393,7 @@ def make_sweep(dtype, integrator: str, model: str, rod: str, features: Features)
     """``sweep``: the fields from the clamp to the tip over the steps of one pass, their phases
     tracked: the lifts at the tip and the largest move between two steps."""
     zero = dtype(0.0)
-    v = _shared(dtype, model, rod, features)
+    v = _shared(dtype, integrator, model, rod, features)
     vec6, vecu, Model, Control, Step, Fields, rf = v.vec6, v.vecu, v.Model, v.Control, v.Step, v.Fields, v.rf
     advance = make_advance(dtype, integrator, model, rod, features)
     ch, tk = make_charts(dtype), make_tracking(dtype)
@@ -439,7 +441,7 @@ def make_verdict_kernel(dtype, integrator: str, model: str, rod: str, features: 
     stride <= -2: -stride steps an interval (phases that turn too fast for the grid)."""
     zero = dtype(0.0)
     one = dtype(1.0)
-    v = _shared(dtype, model, rod, features)
+    v = _shared(dtype, integrator, model, rod, features)
     nu, vec6, vecu, Model, Control, Step, Fields, probe_x, rf = (v.nu, v.vec6, v.vecu, v.Model, v.Control, v.Step,
                                                                  v.Fields, v.probe_x, v.rf)
     matu = wp.types.matrix((nu, nu), dtype)

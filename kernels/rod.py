@@ -10,12 +10,10 @@ tendon states the tendon states E (kernels/tendons.py).
   coupled_rates        (v', u') of the coupled model and the tendon load moved into (n', m')
   point_rates          (v', u') of the point model (needed only for the tendon states)
   rhs                  d/ds of the state between nodes
-  node_busy            whether anything acts at a node
-  span_end             the end of a step over several intervals (to the next busy node)
-  node_jumps           the jumps of n, m (and E) at a node: tendon ends, point forces, kinks
+  point_jumps          the jumps of n at a node where point forces act
 
-``make_rod_funcs(dtype, model, dynamic, rod, features)`` returns them for one precision, one
-tendon model ("coupled" or "point"), statics or dynamics, one rod model and feature set.
+kernels/nodes.py adds the jumps at the nodes and gathers one variant's functions
+(``make_rod_funcs``).
 Sources: [RW11] Rucker & Webster 2011 (statics), [T19] Till, Aloi & Rucker 2019 (dynamics).
 """
 
@@ -29,15 +27,10 @@ from .inertia import make_damping, make_inertia
 from .layout import FE, KBT, KSE
 from .strains import make_strains
 from .structs import make_rows, make_structs, tendon_vectors
-from .tendons import (
-    make_coupled_load,
-    make_displacement,
-    make_node_loads,
-    make_tendon_rates,
-)
-from .variants import ALL, MODELS, RODS, Features
+from .tendons import make_chord_rates, make_coupled_load, make_tendon_rates
+from .variants import Features
 
-__all__ = ["FRICTION_PASSES", "make_rod_funcs"]
+__all__ = ["FRICTION_PASSES", "make_point_jumps", "make_rhs"]
 
 FRICTION_PASSES = 2  # fixed-point passes of the friction load through the coupled 6x6 solve
 
@@ -173,6 +166,7 @@ def make_rhs(dtype, model: str, dynamic: bool, rod: str, features: Features):
     tensions = make_tensions(dtype, dynamic, K, friction).tensions
     store_profile = make_profiles(dtype, dynamic, K).store_profile
     tendon_rates = make_tendon_rates(dtype, dynamic, K, friction, *route).tendon_rates
+    chord_rates = make_chord_rates(dtype, K).chord_rates if model == "disks" else None
     inertia_loads = make_inertia(dtype, features.drag).inertia_loads
     rates = make_strain_rates(dtype, dynamic, kirchhoff, K, friction, *route)
 
@@ -222,7 +216,9 @@ def make_rhs(dtype, model: str, dynamic: bool, rod: str, features: Features):
                                                             step, slot, tau, g, h)
         elif wp.static(friction):
             dv, du = rates.point_rates(md, b, rtn, rtm, v, u, lam_n, lam_m)
-        if wp.static(K > 0):
+        if wp.static(model == "disks"):
+            dE = chord_rates(md, b, step)
+        elif wp.static(K > 0):
             if rated == 0:
                 dE, fb2, lb2 = tendon_rates(md, b, s, u, v, dv, du, step, tau, g, h)
             if wp.static(friction):
@@ -237,105 +233,23 @@ def make_rhs(dtype, model: str, dynamic: bool, rod: str, features: Features):
 
 
 @functools.cache
-def make_node_jumps(dtype, model: str, dynamic: bool, rod: str, features: Features):
-    """``node_jumps``: n, m (and E) across a node; ``node_busy``: whether anything acts there."""
+def make_point_jumps(dtype, dynamic: bool, point_loads: bool):
+    """``point_jumps``: n after the point forces at a node."""
     vec3 = wp.types.vector(3, dtype)
-    mat33 = wp.types.matrix((3, 3), dtype)
-    zero = dtype(0.0)
-    K, friction, kirchhoff = features.tendons, features.friction, rod == "kirchhoff"
-    kvec, evec = tendon_vectors(dtype, K)
-    st = make_structs(dtype, dynamic)
-    Model, Control, Step = st.Model, st.Control, st.Step
-    rows = make_rows(dtype, dynamic)
-    row, term_node = rows.row, rows.term_node
-    law = make_strains(dtype, dynamic, kirchhoff)
-    tensions = make_tensions(dtype, dynamic, K, friction).tensions
-    store_node_profile = make_profiles(dtype, dynamic, K).store_node_profile
-    loads = make_node_loads(dtype, dynamic, kirchhoff, K, friction, features.helix, features.spline)
+    Model = make_structs(dtype, dynamic).Model
+    row = make_rows(dtype, dynamic).row
 
     @wp.func
-    def node_busy(md: Model, b: int, node: int):
-        """1 if a tendon ends or a point force acts at ``node``."""
-        busy = int(0)
-        for k in range(md.n_tendons):
-            if term_node(md, b, k) == node:
-                busy = 1
-        if wp.static(features.point_loads):
-            for j in range(md.n_points):
-                if md.pnode[row(b, md.pnode), j] == node:
-                    busy = 1
-        return busy
-
-    @wp.func
-    def node_jumps(md: Model, ct: Control, sp: Step, b: int, s: dtype, R: mat33, n: vec3, m: vec3, q: vec3,
-                   w: vec3, t0: kvec, E: evec, node: int, slot_pre: int, slot_post: int, store: int):
-        """Point loads at ``node``: n(s+) = n(s-) - F, m(s+) = m(s-) - L (tendon ends, point
-        forces, and in the coupled model the kinks of the tendons that continue). A node
-        without any of them (most nodes) returns at once, unless dynamics stores its slots.
-        Returns n, m and E after the node."""
-        busy = node_busy(md, b, node)
-        if wp.static(dynamic):
-            busy = busy | store
-        if busy == 0:
-            return n, m, E
-        tau, g, h = tensions(md, ct, b, t0, E, slot_pre, zero, zero)
-        v, u = law.strains(md, sp, b, R, n, m, slot_pre)
-        n, m, jump = loads.tendon_end_loads(md, ct, b, s, R, n, m, v, u, node, tau)
-        if wp.static(features.point_loads):
+    def point_jumps(md: Model, b: int, node: int, n: vec3):
+        """n(s+) = n(s-) - F for every point force F at ``node``; returns n and whether any acts."""
+        jump = int(0)
+        if wp.static(point_loads):
             ig = row(b, md.pnode)
             ipf = row(b, md.pforce)
             for j in range(md.n_points):
                 if md.pnode[ig, j] == node:
                     n = n - vec3(md.pforce[ipf, j, 0], md.pforce[ipf, j, 1], md.pforce[ipf, j, 2])
                     jump = 1
-        E2 = E
-        if wp.static(model == "coupled" and features.kinks):
-            if jump != 0:
-                n, m, E2 = loads.kink_loads(md, ct, sp, b, s, R, n, m, v, u, node, slot_pre, slot_post, t0, E, tau)
-        if wp.static(friction):
-            if store != 0:
-                tau2, g2, h2 = tensions(md, ct, b, t0, E2, slot_post, zero, zero)
-                store_node_profile(md, sp, b, slot_pre, tau, g)
-                store_node_profile(md, sp, b, slot_post, tau2, g2)
-        if wp.static(dynamic):
-            if store != 0:
-                v3, u3 = law.strains(md, sp, b, R, n, m, slot_post)
-                law.store_slot(sp, b, slot_pre, v, u, q, w, vec3(), vec3())
-                law.store_slot(sp, b, slot_post, v3, u3, q, w, vec3(), vec3())
-        return n, m, E2
+        return n, jump
 
-    @wp.func
-    def span_end(md: Model, b: int, k: int, stride: int, n_int: int):
-        """The node a step from node k ends at: up to ``stride`` intervals on, stopping at the
-        first node something acts on (stride <= 1: k + 1)."""
-        k1 = k + 1
-        while k1 - k < stride and k1 < n_int:  # over nodes where nothing acts
-            if node_busy(md, b, k1) != 0:
-                break
-            k1 = k1 + 1
-        return k1
-
-    return SimpleNamespace(node_busy=node_busy, node_jumps=node_jumps, span_end=span_end)
-
-
-@functools.cache
-def make_rod_funcs(dtype, model: str, dynamic: bool, rod: str = "cosserat", features: Features = ALL):
-    """The rod's functions for one variant: ``rod`` "cosserat" (shear and extension) or
-    "kirchhoff" (inextensible, unshearable: v = v*, so v' = 0 and the coupled tendon system
-    shrinks to 3x3 for u'); ``features``: which physics compiles in (``Features``).
-
-    With ``features.tendons`` = K > 0 the tension of tendon k at s is ``tensions(t0, E)``: t0
-    the tension at the motor (``base_tensions``: commanded, or a shooting unknown under
-    displacement control), times the capstan factor exp(-sigma mu Theta) (``friction``)."""
-    if model not in MODELS:
-        raise ValueError(f"model must be one of {MODELS}, got {model!r}")
-    if rod not in RODS:
-        raise ValueError(f"rod must be one of {RODS}, got {rod!r}")
-    st = make_structs(dtype, dynamic)
-    jumps = make_node_jumps(dtype, model, dynamic, rod, features)
-    return SimpleNamespace(
-        vec3=wp.types.vector(3, dtype), mat33=wp.types.matrix((3, 3), dtype), Model=st.Model, Control=st.Control,
-        Step=st.Step, row=make_rows(dtype, dynamic).row, rhs=make_rhs(dtype, model, dynamic, rod, features).rhs,
-        node_jumps=jumps.node_jumps, node_busy=jumps.node_busy, span_end=jumps.span_end,
-        base_tensions=make_displacement(dtype, dynamic, features.tendons, features.displaced).base_tensions,
-        tstate=features.tendons > 0, K=features.tendons)
+    return SimpleNamespace(point_jumps=point_jumps)

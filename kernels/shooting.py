@@ -18,7 +18,8 @@ from .drivers import (
 from .integration import N_BASE, make_shoot
 from .jacobi import make_verdict_kernel
 from .newton import make_newton
-from .rod import make_rod_funcs
+from .nodes import make_rod_funcs
+from .structs import tendon_vectors
 from .variants import ALL, INTEGRATORS, STAGES, Features
 
 __all__ = ["make_shooting_kernels"]
@@ -40,7 +41,7 @@ def make_shooting_kernels(dtype, integrator: str, model: str, dynamic: bool = Fa
     if integrator not in INTEGRATORS:
         raise ValueError(f"integrator must be one of {INTEGRATORS}, got {integrator!r}")
     variant = (dtype, integrator, model, dynamic, rod, features)
-    rf = make_rod_funcs(dtype, model, dynamic, rod, features)
+    rf = make_rod_funcs(dtype, integrator, model, dynamic, rod, features)
     nu = N_BASE + features.displaced
     nt = make_newton(dtype, nu, dynamic)
     probes = make_probe_kernels(*variant)
@@ -51,6 +52,6 @@ def make_shooting_kernels(dtype, integrator: str, model: str, dynamic: bool = Fa
                            jacobian=None if dynamic else make_jacobian_kernel(*variant),
                            verdict=verdict and verdict.kernel, Fields=verdict and verdict.Fields,
                            Model=rf.Model, Control=rf.Control, Step=rf.Step, Nodes=make_shoot(*variant).Nodes,
-                           Newton=nt.Newton, vec3=rf.vec3, mat33=rf.mat33, vecu=nt.vec, matu=nt.mat,
+                           Newton=nt.Newton, vec3=rf.vec3, mat33=rf.mat33, evec=tendon_vectors(dtype, features.tendons)[1], vecu=nt.vec, matu=nt.mat,
                            stages=STAGES[integrator], n_probes=nt.n_probes, width=nt.width, nu=nu, K=rf.K,
                            tstate=rf.tstate, friction=features.friction, modules=module_names(*variant))

@@ -42,6 +42,7 @@ def make_structs(dtype, dynamic: bool):
         term_node: wp.array2d(dtype=int)  # (1|B, K) node where each tendon ends
         pforce: wp.array3d(dtype=dtype)  # (1|B, P, 3) point forces [N]
         pnode: wp.array2d(dtype=int)  # (1|B, P) node of each point force
+        dnext: wp.array2d(dtype=int)  # (1|B, N+1) disk model: at node 0 and each disk the next disk's node (its own at the last), else -1
         tmode: wp.array2d(dtype=int)  # (1|B, K) shooting unknown 6 + j of a displacement-controlled tendon, or -1
         route: wp.array4d(dtype=dtype)  # (1, K, S, 9) spline segments: s_i, then x and y cubic coefficients
         n_tendons: int

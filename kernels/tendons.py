@@ -9,6 +9,7 @@ unknowns and residuals of displacement control.
   kink_loads           the push of the tendons that continue past a jump of n or m
   tendon_rates         d/ds of the tendon states E (turning, path and unstretched length) and
                        with friction the friction load sum tau' t
+  chord_rates          the same in the disk model (straight chords, lengths added at the disks)
   base_tensions        the tension of every tendon at the motor (s = 0)
   length_residuals     the residual of each displacement-controlled tendon
 
@@ -310,6 +311,29 @@ def make_tendon_rates(dtype, dynamic: bool, tendons: int, friction: bool, helix:
         return dE, fb, lb
 
     return SimpleNamespace(tendon_rates=tendon_rates)
+
+
+@functools.cache
+def make_chord_rates(dtype, tendons: int):
+    """``chord_rates``: d/ds of the tendon states in the disk model (kernels/disks.py)."""
+    one = dtype(1.0)
+    evec = tendon_vectors(dtype, tendons)[1]
+    K = tendons  # E's block width: 4 x the tendon count
+    Model = make_structs(dtype, False).Model
+    term_node = make_rows(dtype, False).term_node
+
+    @wp.func
+    def chord_rates(md: Model, b: int, step: int):
+        """The lengths less the arc length run lose 1 per unit s (each chord adds its length at
+        the disk it ends at)."""
+        dE = evec()
+        for k in range(md.n_tendons):
+            if step < term_node(md, b, k):
+                dE[K + k] = -one
+                dE[2 * K + k] = -one
+        return dE
+
+    return SimpleNamespace(chord_rates=chord_rates)
 
 
 @functools.cache

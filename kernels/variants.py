@@ -6,7 +6,7 @@ from typing import NamedTuple
 
 __all__ = ["ALL", "INTEGRATORS", "MODELS", "RODS", "STAGES", "Features"]
 
-MODELS = ("coupled", "point")
+MODELS = ("coupled", "point", "disks")
 RODS = ("cosserat", "kirchhoff")
 STAGES = {"euler": 1, "midpoint": 2, "rk4": 4}  # explicit Runge-Kutta schemes and their stage counts
 INTEGRATORS = tuple(STAGES)
@@ -21,7 +21,7 @@ class Features(NamedTuple):
     drag: bool = True  # square-law drag (dynamics)
     kinks: bool = True  # coupled model: the push of tendons kinked at a jump of n or m
     friction: bool = False  # capstan friction: tensions vary along s
-    tendons: int = 0  # K > 0: per-tendon states along s (turning, path length, unstretched length)
+    tendons: int = 0  # K > 0: per-tendon states along s (turning, path length, unstretched length); 4K: disks
     displaced: int = 0  # displacement-controlled tendons: one shooting unknown and residual each
     spline: bool = False  # tendons routed through points (cubic segments in Model.route)
 

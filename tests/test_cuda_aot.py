@@ -12,10 +12,11 @@ def test_every_kernel_option_builds_for_sm90(tmp_path):
     seen = {field: {getattr(v, field) for v in variants} for field in ("precision", "integrator", "model", "rod",
                                                                        "dynamic")}
     assert seen == {"precision": {"float64", "float32"}, "integrator": {"euler", "midpoint", "rk4"},
-                    "model": {"coupled", "point"}, "rod": {"cosserat", "kirchhoff"}, "dynamic": {False, True}}
+                    "model": {"coupled", "point", "disks"}, "rod": {"cosserat", "kirchhoff"},
+                    "dynamic": {False, True}}
     assert {v.features[:5] for v in variants} >= {(True,) * 5, (False,) * 5}
     assert {(v.model, v.features.friction, v.features.displaced > 0) for v in variants} >= {
-        ("coupled", True, True), ("point", True, True)}
+        ("coupled", True, True), ("point", True, True), ("disks", False, True)}
     results = compile_all(variants, 90, str(tmp_path), jobs=os.cpu_count() or 1, log=lambda line: None)
     for v, mods in results:
         groups = {name.split("_")[2] for name, _, _ in mods}

@@ -28,6 +28,7 @@ __all__ = ["Variant", "compile_variant", "covering_variants", "all_variants", "m
 PRECISIONS = ("float64", "float32")
 NONE = Features(gravity=False, point_loads=False, helix=False, drag=False, kinks=False)
 TENDON_STATES = ((False, 0, 0), (True, 4, 2))  # (friction, tendons, displaced): none, or all of them
+DISK_STATES = ((False, 16, 0), (False, 16, 2))  # the disk model: 4 tendons' states and holes, frictionless
 
 
 class Variant(NamedTuple):
@@ -47,24 +48,27 @@ class Variant(NamedTuple):
 
 def all_variants() -> list[Variant]:
     """Every variant the package can build (tendon states: statics only, each tendon count
-    compiles like K = 4 with 2 displaced tendons)."""
+    compiles like K = 4 with 2 displaced tendons; the disk model: statics with its states)."""
     return [Variant(prec, integ, model, rod, dyn, Features(*flags, *states))
             for prec, integ, model, rod, dyn in itertools.product(PRECISIONS, INTEGRATORS, MODELS, RODS, (False, True))
+            if not (dyn and model == "disks")
             for flags in itertools.product((True, False), repeat=5)
-            for states in (TENDON_STATES if not dyn else TENDON_STATES[:1])]
+            for states in (DISK_STATES if model == "disks" else TENDON_STATES if not dyn else TENDON_STATES[:1])]
 
 
 def covering_variants() -> list[Variant]:
     """Every precision, integrator, tendon model, rod model, statics and dynamics, both extreme
     feature sets, and tendon states (friction, displacement unknowns) with either tendon model,
-    each at least once (6 variants; spline routes in the first with tendon states)."""
+    each at least once, and the disk model (7 variants; spline routes in the first with tendon
+    states)."""
     states = dict(friction=True, tendons=4, displaced=2, spline=True)
     return [Variant("float64", "rk4", "coupled", "cosserat", False, ALL),
             Variant("float32", "midpoint", "point", "kirchhoff", True, ALL),
             Variant("float64", "euler", "coupled", "kirchhoff", True, NONE),
             Variant("float32", "rk4", "point", "cosserat", False, NONE),
             Variant("float64", "rk4", "coupled", "cosserat", False, ALL._replace(**states)),
-            Variant("float32", "midpoint", "point", "kirchhoff", False, NONE._replace(**states))]
+            Variant("float32", "midpoint", "point", "kirchhoff", False, NONE._replace(**states)),
+            Variant("float64", "rk4", "disks", "cosserat", False, ALL._replace(tendons=16, displaced=2))]
 
 
 def _modules(v: Variant):

@@ -55,7 +55,8 @@ def _grid_row(L: float, breaks: np.ndarray, nodes: int):
     pts = pts[pts > tol]
     if len(pts) > nodes:
         raise InputError(f"solver nodes = {nodes} is fewer than the {len(pts)} segments set by "
-                         "tendon terminations, point loads and the knots of tendons routed through points")
+                         "tendon terminations, point loads, the knots of tendons routed through points and the "
+                         "spacer disks (model 'disks')")
     seg = np.diff(np.concatenate([[0.0], pts]))
     ideal = nodes * seg / L
     count = np.maximum(1, np.floor(ideal)).astype(int)
@@ -70,6 +71,34 @@ def _grid_row(L: float, breaks: np.ndarray, nodes: int):
     ends = np.concatenate([[0.0], pts])
     marks = np.array([node_of[np.argmin(np.abs(ends - b))] for b in breaks], dtype=np.int64)
     return grid, marks
+
+
+def check_disk_model(robot: Robot, tendon_len: np.ndarray) -> None:
+    """The disk model needs disks, frictionless tendons, and every tendon ending at a disk."""
+    if not len(robot.disks):
+        raise InputError("model = 'disks' needs the robot's disks ([robot] disks = a count per section or "
+                         "a list of arc lengths)")
+    if robot.has_friction:
+        raise InputError("model = 'disks' is frictionless for now: set every tendon's friction to 0, or use "
+                         "model = 'coupled' for capstan friction")
+    tol = 1e-9 * float(robot.length.max())
+    off = np.abs(tendon_len[..., None] - robot.disks).min(axis=-1) > tol if tendon_len.size else np.zeros((1, 0), bool)
+    if off.any():
+        b, k = np.argwhere(off)[0]
+        raise InputError(f"tendons[{k}] ends at s = {float(tendon_len[b, k])!r} m (rod {b}), not at a disk: the "
+                         f"disk model needs every tendon to end at one (disks at {robot.disks.tolist()} m)")
+
+
+def disk_nodes(grid: np.ndarray, disks: np.ndarray) -> np.ndarray:
+    """(Bg, N+1) per node: from node 0 and from every disk the node of the next disk (its own
+    node at the last disk), -1 at the other nodes."""
+    out = np.full(grid.shape, -1, dtype=np.int32)
+    for row, g in zip(out, grid):
+        at = np.abs(g[:, None] - disks[None]).argmin(axis=0)
+        chain = np.concatenate([[0], at])
+        row[chain[:-1]] = chain[1:]
+        row[chain[-1]] = chain[-1]
+    return out
 
 
 def _columns(cols: list[np.ndarray], width: int) -> np.ndarray:
@@ -127,21 +156,24 @@ MODES = ("solve", "reference")
 
 
 def scene_features(robot: Robot, tendon: np.ndarray, specialize: bool, kink_loads: bool = True,
-                   mode: str = "solve", lengths: bool = False) -> Features:
+                   mode: str = "solve", lengths: bool = False, disks: bool = False) -> Features:
     """The physics this batch contains (all of the optional terms when ``specialize`` is off).
     Tendon states (path lengths, friction) are structure, not options: friction when a tendon
     has mu > 0, one unknown per displacement-controlled tendon. ``mode`` "reference": every
     tendon in tension control without friction, integrating the tendon lengths (the reference
-    state of displacement control); ``lengths``: integrate them anyway."""
+    state of displacement control); ``lengths``: integrate them anyway. ``disks``: the disk model,
+    whose tendon states (always) hold each tendon's last hole and chord too: 4 x the tendon count
+    (kernels/disks.py)."""
     friction = mode == "solve" and robot.has_friction
     displaced = len(robot.displaced) if mode == "solve" else 0
-    states = robot.n_tendons if (friction or displaced or lengths or mode == "reference") else 0
+    states = robot.n_tendons if (friction or displaced or lengths or mode == "reference" or disks) else 0
+    states *= 4 if disks else 1
     spline = any(t.routing == "points" for t in robot.tendons)
     tendons = dict(kinks=kink_loads, friction=friction, tendons=states, displaced=displaced, spline=spline)
     if not specialize:
         return ALL._replace(**tendons)
     return Features(gravity=bool(np.any(robot.gravity != 0) and np.any(robot.density > 0)),
-                    point_loads=len(robot.point_forces) > 0,
+                    point_loads=len(robot.point_forces) > 0 or (disks and robot.disk_mass > 0),
                     helix=spline or bool(np.any(tendon[..., [layout.T_A, layout.T_DX, layout.T_DY]] != 0)),
                     drag=bool(np.any(robot.drag != 0)), **tendons)
 
@@ -151,7 +183,8 @@ class Tables:
     """The packed host tables of one robot at one node count (leading dimension 1 or B).
 
     rod, dyn, tendon, pforce: see kernels/layout.py; grid (1|B, N+1) [m]; term_node (1|B, K)
-    and pnode (1|B, P): node indices; tendon_len (1|B, K): termination arc lengths [m] (the
+    and pnode (1|B, P): node indices; dnext (1|B, N+1): the disk model's next disk from node 0
+    and every disk (``disk_nodes``; (1, 1) of -1 in the other models); tendon_len (1|B, K): termination arc lengths [m] (the
     kernels' tendon lengths are relative to them); route (1, K, S, 9): the spline segments of tendons routed
     through points (Robot.route_table); tmode (1, K): the shooting unknown 6 + j of each
     displacement-controlled tendon (-1: tension control); features: the physics the robot
@@ -165,6 +198,7 @@ class Tables:
     term_node: np.ndarray
     pforce: np.ndarray
     pnode: np.ndarray
+    dnext: np.ndarray
     tmode: np.ndarray
     route: np.ndarray
     tendon_len: np.ndarray
@@ -173,19 +207,23 @@ class Tables:
 
     @classmethod
     def of(cls, robot: Robot, nodes: int, specialize: bool = True, kink_loads: bool = True,
-           mode: str = "solve", lengths: bool = False) -> "Tables":
+           mode: str = "solve", lengths: bool = False, disks: bool = False) -> "Tables":
+        """``disks``: the tables of the disk model (a node at every disk, the disks' weights)."""
         tendon_len = robot.tendon_lengths() if robot.tendons else np.zeros((1, 0))
-        point_s, point_f = robot.pack_point_forces()
-        knots = [t.points[1:-1, 0] for t in robot.tendons if t.routing == "points"]
+        if disks:
+            check_disk_model(robot, tendon_len)
+        point_s, point_f = robot.pack_point_forces(disk_weights=disks)
+        knots = [t.points[1:-1, 0] for t in robot.tendons if t.routing == "points"] + ([robot.disks] if disks else [])
         grid, term_node, point_node = make_grid(robot.length, tendon_len, point_s, nodes,
                                                 np.concatenate(knots)[None] if knots else None)
+        dnext = disk_nodes(grid, robot.disks) if disks else np.full((1, 1), -1, dtype=np.int32)
         tendon = pack_tendons(robot)
-        features = scene_features(robot, tendon, specialize, kink_loads, mode, lengths)
+        features = scene_features(robot, tendon, specialize, kink_loads, mode, lengths, disks)
         tmode = np.full((1, robot.n_tendons), -1, dtype=np.int32)
         if features.displaced:
             tmode[0, list(robot.displaced)] = np.arange(features.displaced)
         return cls(rod=pack_rod(robot), dyn=pack_dynamics(robot), tendon=tendon, grid=grid, term_node=term_node,
-                   pforce=point_f, pnode=point_node, tmode=tmode, route=robot.route_table(), tendon_len=tendon_len,
+                   pforce=point_f, pnode=point_node, dnext=dnext, tmode=tmode, route=robot.route_table(), tendon_len=tendon_len,
                    features=features, straight=StraightRod.of(robot))
 
     @property
@@ -329,6 +367,7 @@ def put_model(kern, dev: Device, tables: Tables, lo: int, hi: int):
     md.term_node = dev.array(_pad(tables.rows("term_node", lo, hi), (1,)), np.int32)
     md.pforce = dev.array(_pad(tables.rows("pforce", lo, hi), (1, 3)))
     md.pnode = dev.array(_pad(tables.rows("pnode", lo, hi), (1,)), np.int32)
+    md.dnext = dev.array(tables.rows("dnext", lo, hi), np.int32)
     md.tmode = dev.array(_pad(tables.tmode, (1,)), np.int32)
     md.route = dev.array(tables.route if tables.route.shape[1] else np.zeros((1, 1, 1, 9)))
     md.n_tendons = tables.tendon.shape[1]

@@ -127,10 +127,12 @@ def load_kernels(robot: Robot, options, device=None, *, dynamic: bool = False) -
     dev = wp.get_device(device)
     tendon = pack_tendons(robot)
     wdtype = PRECISIONS[options.precision][0]
+    disks = options.model == "disks"
     variants = [(False, scene_features(robot, tendon, options.specialize, options.kink_loads,
-                                       lengths=options.tendon_states))]
+                                       lengths=options.tendon_states, disks=disks))]
     if robot.displaced:  # the reference state of displacement control
-        variants.append((False, scene_features(robot, tendon, options.specialize, options.kink_loads, "reference")))
+        variants.append((False, scene_features(robot, tendon, options.specialize, options.kink_loads, "reference",
+                                               disks=disks)))
     if dynamic:
         variants.append((True, scene_features(robot, tendon, options.specialize, options.kink_loads)))
     for dyn, features in variants:

@@ -55,8 +55,9 @@ class StaticOptions:
 
     nodes: integration intervals along s (N; shapes have N + 1 nodes). integrator: "rk4",
     "midpoint" or "euler". model: "coupled" (distributed tendon loads), "point" (termination
-    loads only) or "constant_curvature" (closed form: straight tendons ending at the tip, no
-    external load). rod: "cosserat" (shear, extension) or "kirchhoff" (inextensible,
+    loads only), "disks" (tendons straight between the robot's spacer disks, loading the
+    backbone there; statics, frictionless) or "constant_curvature" (closed form: straight
+    tendons ending at the tip, no external load). rod: "cosserat" (shear, extension) or "kirchhoff" (inextensible,
     unshearable). specialize: compile out the physics the batch does not contain (gravity,
     point loads, helical routing, drag). error_estimate: also solve with N/2 nodes and report
     per rod ``tip_error_estimate`` = 2 |tip(N) - tip(N/2)| / (2^p - 1) [m] (p: the integrator's

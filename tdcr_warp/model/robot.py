@@ -223,7 +223,8 @@ class Robot:
     length [m], youngs_modulus [Pa], poisson_ratio [-], radius [m], density [kg/m^3]:
     float or (B,). precurvature u* [1/m] (body frame), gravity [m/s^2], tip_force [N],
     tip_moment [N m] (world frame): (3,) or (B, 3). tendons: sequence of :class:`Tendon`;
-    point_forces: sequence of :class:`PointForce`.
+    point_forces: sequence of :class:`PointForce`. disks, disk_mass: the spacer disks of the
+    tendon model "disks" (``_set_disk_fields``).
     """
 
     length: object = 0.5
@@ -241,6 +242,8 @@ class Robot:
     damping_bending: object = (0.0, 0.0, 0.0)
     drag: object = (0.0, 0.0, 0.0)
     disk_radius: object = None
+    disks: object = ()
+    disk_mass: object = 0.0
     batch_size: int = field(init=False)
 
     def __post_init__(self):
@@ -256,10 +259,7 @@ class Robot:
             object.__setattr__(self, "_section", self._compute_section())
         _check_stiffness(self)
         _check_within_length(self)
-        if self.disk_radius is not None:
-            object.__setattr__(self, "disk_radius", _as_field("disk_radius", self.disk_radius, ()))
-            _check("disk_radius", self.disk_radius, self.disk_radius > 0, "positive")
-            _check_inside_disks(self)
+        _set_disk_fields(self)
 
     @property
     def n_tendons(self) -> int:
@@ -357,12 +357,14 @@ class Robot:
                     ddr[..., k, out] = 2 * C + 6 * u * D
         return r, dr, ddr
 
-    def pack_point_forces(self) -> tuple[np.ndarray, np.ndarray]:
-        """Point-force arc lengths (1 or B, P) [m] and forces (1 or B, P, 3) [N]."""
-        if not self.point_forces:
+    def pack_point_forces(self, disk_weights: bool = False) -> tuple[np.ndarray, np.ndarray]:
+        """Point-force arc lengths (1 or B, P) [m], forces (1 or B, P, 3) [N] (and the disks' weights)."""
+        forces = list(self.point_forces) + ([PointForce(s, self.disk_mass * self.gravity) for s in self.disks]
+                                            if disk_weights and self.disk_mass > 0 else [])
+        if not forces:
             return np.zeros((1, 0)), np.zeros((1, 0, 3))
-        s = _stack_cols([pf.s for pf in self.point_forces])
-        f = [pf.force for pf in self.point_forces]
+        s = _stack_cols([pf.s for pf in forces])
+        f = [pf.force for pf in forces]
         b = max(x.shape[0] for x in f)
         return s, np.stack([np.broadcast_to(x, (b, 3)) for x in f], axis=1)
 
@@ -435,6 +437,40 @@ def _check_within_length(robot: Robot) -> None:
         if t.routing == "points" and t.length is None and np.any(np.abs(t.points[-1, 0] - L) > 1e-12 * L):
             raise InputError(f"tendons[{i}].points end at s = {float(t.points[-1, 0])!r}, the tendon runs to "
                              f"the tip at {float(L.max())!r} (set its length, or end the points there)")
+
+
+def _set_disk_fields(robot: Robot) -> None:
+    """disk_radius: every route inside it (None: unchecked). disks: the spacer disks' arc lengths
+    [m] (shared, increasing, in (0, L]), or an integer D: D evenly spaced disks in each section
+    (a section ends where a tendon ends, the last at the tip); the tendon model "disks" routes
+    the tendons straight between them. disk_mass [kg]: each disk's weight in that model."""
+    if robot.disk_radius is not None:
+        object.__setattr__(robot, "disk_radius", _as_field("disk_radius", robot.disk_radius, ()))
+        _check("disk_radius", robot.disk_radius, robot.disk_radius > 0, "positive")
+        _check_inside_disks(robot)
+    d = robot.disks
+    if isinstance(d, numbers.Integral) and not isinstance(d, bool):
+        if d < 1:
+            raise InputError(f"disks: expected a positive count per section or a list of arc lengths, got {d!r}")
+        ends = [float(robot.length.max())] + [float(x) for t in robot.tendons if t.length is not None
+                                              for x in np.unique(t.length)]
+        ends = np.unique(ends)
+        starts = np.concatenate([[0.0], ends[:-1]])
+        d = np.concatenate([np.linspace(a, b, d + 1)[1:] for a, b in zip(starts, ends)])
+    arr = real_array(d, "disks").reshape(-1) if np.ndim(d) <= 1 else None
+    if arr is None:
+        raise InputError(f"disks: expected a list of arc lengths, got shape {np.shape(d)}")
+    if not np.isfinite(arr).all() or (arr <= 0).any() or (arr > robot.length.min() * (1 + 1e-12)).any():
+        raise InputError(f"disks: every arc length must be in (0, {float(robot.length.min())!r}] m, got {arr.tolist()}")
+    if (np.diff(arr) <= 0).any():
+        raise InputError(f"disks: arc lengths must increase, got {arr.tolist()}")
+    arr.flags.writeable = False
+    object.__setattr__(robot, "disks", arr)
+    mass = _as_field("disk_mass", robot.disk_mass, ())
+    if mass.shape[0] != 1:
+        raise InputError(f"disk_mass: expected one number (shared by the batch), got shape {mass.shape[1:]}")
+    _check("disk_mass", mass, mass >= 0, ">= 0 [kg]")
+    object.__setattr__(robot, "disk_mass", float(mass[0]))
 
 
 def _check_inside_disks(robot: Robot) -> None:

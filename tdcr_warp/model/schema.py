@@ -111,6 +111,11 @@ _TABLES = (
         Key("precurvature", "numbers", "1/m", "precurvature u* (body frame)", VECTOR, default_text="[0, 0, 0]"),
         Key("disk_radius", "numbers", "m", "spacer disks' radius: every tendon route must stay inside it",
             PER_ROD, default_text="unchecked"),
+        Key("disks", "numbers", "m", "spacer disks for [solver] model = \"disks\": their arc lengths, or an "
+            "integer D for D evenly spaced disks per section (sections end where tendons end)", "(D,) or an integer",
+            default_text="none"),
+        Key("disk_mass", "number", "kg", "each spacer disk's mass (its weight acts at the disk, model \"disks\")",
+            "", 0.0),
     )),
     Table("tendons", "One table per tendon, in order (routing in the body/disk frame).", array=True, keys=(
         Key("offset", "numbers", "m", "[x, y] of the route at the base", "(2,) or (B, 2)",
@@ -159,8 +164,9 @@ _TABLES = (
             default=50, checked_by="StaticOptions"),
         Key("integrator", "string", "-", "the ODE integrator", default="rk4", allowed=("rk4", "midpoint", "euler"),
             checked_by="StaticOptions"),
-        Key("model", "string", "-", "tendon loads: distributed, at the terminations only, or closed form",
-            default="coupled", allowed=("coupled", "point", "constant_curvature"), checked_by="StaticOptions"),
+        Key("model", "string", "-", "tendon loads: distributed, at the terminations only, at spacer disks, or "
+            "closed form",
+            default="coupled", allowed=("coupled", "point", "disks", "constant_curvature"), checked_by="StaticOptions"),
         Key("precision", "string", "-", "floating point of the kernels", default="float64",
             allowed=("float64", "float32"), checked_by="StaticOptions"),
         Key("tol", "number", "m", "Newton stops below this tip-like residual L |r|", default=None,

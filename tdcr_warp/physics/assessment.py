@@ -39,8 +39,10 @@ class Assessor:
         """Why the stability test does not apply to this batch ("" where it does)."""
         if self.tables.features.friction:
             return "friction (not conservative)"
-        if self.opts.model != "coupled" and self.robot.n_tendons:
+        if self.opts.model == "point" and self.robot.n_tendons:
             return "point-model tendon loads (follower forces)"
+        if self.opts.model == "disks":
+            return "disk model (a chord's pull depends on both holes it joins: not a load the test covers)"
         return ""
 
     def assess(self, sh: Shooting, lo: int, hi: int, tau: np.ndarray, taut: np.ndarray, res: dict,

@@ -184,8 +184,9 @@ class Simulator:
         self.B = tau.shape[0]
         self.dev = wp.get_device(device)
         self._command = _Commands(robot, self.opts, self.dev, self.B, np.zeros_like(tau) if q is None else q)
-        if self.opts.model == "constant_curvature":
-            raise InputError("dynamics needs a rod model: solver model 'coupled' or 'point'")
+        if self.opts.model in ("constant_curvature", "disks"):
+            raise InputError(f"dynamics needs solver model 'coupled' or 'point', got {self.opts.model!r} (the disk "
+                             "model is static for now)")
         static, self.tables, x0 = _static_start(robot, tau, displacements, initial, self.opts, self.dev)
         self.grid = np.broadcast_to(self.tables.grid, (self.B, self.tables.grid.shape[1]))
         self.path = static.tendon_path_length

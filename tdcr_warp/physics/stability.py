@@ -31,7 +31,11 @@ Displacement control adds the stiffness of the wires: the second variation gains
 tensions less the count of positive eigenvalues of the Schur complement of the taut tendons'
 length residuals (Haynsworth inertia additivity; the complement is -(A Q^-1 A^T + c l) up to a
 positive factor). Not assessed (index -1): friction (not conservative) and the point model's
-tendon loads (follower forces).
+tendon loads (follower forces), and the disk model: its chords are conservative (a tendon's
+energy is its tension times the sum of its chords' lengths), but each chord's pull depends on
+the positions of both holes it joins, terms of the second variation that the Jacobi fields of
+a local load along s leave out (measured: a single disk at the tip, which buckles the rod like a
+column at tau = pi^2 EI / L^2, comes out stable beyond it).
 """
 
 from __future__ import annotations
@@ -42,7 +46,6 @@ import warp as wp
 from tdcr_warp.core.build import Tables
 from tdcr_warp.core.launch import Mirror, Replay
 from tdcr_warp.kernels import layout
-from tdcr_warp.kernels.structs import tendon_vectors
 from tdcr_warp.physics.sensitivity import AXIAL_STRAIN, PROBE_REL
 
 __all__ = ["NEUTRAL", "Verdict", "wires_stabilised"]
@@ -90,7 +93,7 @@ class Verdict:
         nt = k.nu + 1
         fd = self.fields = k.Fields()  # the trajectories' states and work matrices, per rod
         fd.p, fd.R, fd.n, fd.m = (wp.empty((b, nt), dtype=t, device=dev) for t in (k.vec3, k.mat33, k.vec3, k.vec3))
-        fd.E = wp.empty((b, nt), dtype=tendon_vectors(wdt, k.K)[1], device=dev)
+        fd.E = wp.empty((b, nt), dtype=k.evec, device=dev)
         fd.wk = wp.empty((b, 4, 6, 6), dtype=wdt, device=dev)  # U, V and two work matrices
         self.index = wp.zeros(b, dtype=int, device=dev)
         self.margin = wp.zeros(b, dtype=wdt, device=dev)

@@ -246,7 +246,8 @@ class StaticProblem:
 
     def __init__(self, robot: Robot, B: int, opts: StaticOptions, device, mode: str = "solve"):
         self.robot, self.B, self.opts, self.device = robot, B, opts, device
-        self.tables = Tables.of(robot, opts.nodes, opts.specialize, opts.kink_loads, mode, opts.tendon_states)
+        self.tables = Tables.of(robot, opts.nodes, opts.specialize, opts.kink_loads, mode, opts.tendon_states,
+                                 opts.model == "disks")
         self.chunks = split(B, device, opts.threads)
         K = robot.n_tendons
         self.solvers = [Shooting(self.tables, lo, hi, np.zeros((hi - lo, K)), precision=opts.precision,
