@@ -1,4 +1,4 @@
-"""Shared bits of the experiment scripts: run metadata and atomic JSON reports."""
+"""Shared bits of the experiment scripts: run metadata, atomic JSON reports, the real robots' data and disks."""
 
 from __future__ import annotations
 
@@ -8,9 +8,24 @@ import platform
 import subprocess
 from pathlib import Path
 
+import numpy as np
+
 ROOT = Path(__file__).resolve().parents[1]
 # opencr-mujoco's training files of the real robots (v4_train.csv, v6_train.csv): not shipped here
 HARDWARE_DATA = Path(os.environ.get("TDCR_HARDWARE_DATA", ROOT.parent / "shared" / "validation" / "ocm_ftdcr"))
+
+
+# opencr-mujoco's links per segment (its data/sysid/v*_robot.json, links_per_segment): a spacer disk ends each
+LINKS = {"v4": (10, 10, 10), "v6": (15, 15, 8)}
+
+
+def with_disks(scene: dict, name: str) -> dict:
+    """A scene dict of robot ``name`` in the disk model: a disk at the end of each link (sections
+    end where tendons end), one RK4 step between two disks."""
+    ends = sorted({t["length"] for t in scene["tendons"]})
+    disks = [float(x) for a, b, c in zip([0.0, *ends[:-1]], ends, LINKS[name]) for x in np.linspace(a, b, c + 1)[1:]]
+    return scene | {"robot": scene["robot"] | {"disks": disks},
+                    "solver": scene.get("solver", {}) | {"model": "disks", "nodes": len(disks)}}
 
 
 def metadata(device: str, **extra) -> dict:

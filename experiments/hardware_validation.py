@@ -29,6 +29,7 @@ from _common import (
     add_hardware_data_argument,
     metadata,
     no_hardware_data,
+    with_disks,
     write_report,
 )
 
@@ -48,8 +49,6 @@ RUNGS = {"coupled cosserat (fitted)": {}, "coupled kirchhoff": {"rod": "kirchhof
          "point cosserat": {"model": "point"}, "coupled cosserat N = 8": {"nodes": 8},
          "coupled cosserat, friction mu = 0.1": "friction", "constant curvature": {"model": "constant_curvature"},
          "disks cosserat (one per link)": "disks"}
-# opencr-mujoco's links per segment (data/sysid/v*_robot.json, links_per_segment): a spacer disk at the end of each
-LINKS = {"v4": (10, 10, 10), "v6": (15, 15, 8)}
 
 
 def _summary(m: dict) -> dict:
@@ -74,11 +73,8 @@ def _rung_scene(fitted: dict, over, name: str) -> dict:
         for t in d["tendons"]:
             t["friction"] = 0.1
         over = {}
-    if over == "disks":  # the disks at the ends of the links, one RK4 step between two
-        ends = sorted({t["length"] for t in d["tendons"]})
-        d["robot"]["disks"] = [float(x) for a, b, c in zip([0.0, *ends[:-1]], ends, LINKS[name])
-                               for x in np.linspace(a, b, c + 1)[1:]]
-        over = {"model": "disks", "nodes": len(d["robot"]["disks"])}
+    if over == "disks":
+        return with_disks(d, name)
     d["solver"] = d.get("solver", {}) | over
     return d
 
@@ -98,11 +94,12 @@ def cross_validate(name: str, data: dict, meas, smoke: bool) -> tuple[dict, dict
         test = np.flatnonzero(fold == k)
         fk = fit(data, meas.subset(np.flatnonzero(fold != k)), max_iter=2 if smoke else 30)
         held = meas.subset(test)
+        base = None  # the fitted rung's prediction (RUNGS starts with it): the disk model's warm start
         for rung, over in RUNGS.items():
             try:
                 sc = scene_from_dict(_rung_scene(fk["scene"], over, name))
                 predict(sc, held.subset(np.arange(min(4, len(held)))))  # kernels loaded
-                p = predict(sc, held, initial=base["solution"] if over == "disks" else None)
+                p = predict(sc, held, initial=base["solution"] if over == "disks" and base else None)
             except InputError as e:
                 per_rung[rung] = str(e)
                 continue

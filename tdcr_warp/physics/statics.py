@@ -602,7 +602,8 @@ def solve_static(robot: Robot, tensions=None, *, displacements=None, slip=None, 
     friction can hold it (stick) and slips where it cannot (docs/tendons.md); slip is then
     not used. options / overrides: :class:`StaticOptions` fields (nodes, integrator, model, ...).
     device: "cpu" or "cuda:0" (None: Warp's default). initial: an earlier solution of the
-    same batch size to warm-start from (its unknowns and Jacobian). parameters: robot fields
+    same batch size to warm-start from (its unknowns and Jacobian; the disk model without one
+    starts from the coupled model's solution, the limit of ever closer disks). parameters: robot fields
     to differentiate the tip pose by (``parameter_jacobian``), e.g. "youngs_modulus",
     "tendons[0].offset[1]", "tip_force[0]" (tdcr_warp.physics.sensitivity; under displacement control
     the motor's given length is held, not the displacement).
@@ -621,6 +622,10 @@ def solve_static(robot: Robot, tensions=None, *, displacements=None, slip=None, 
             raise InputError("solver model 'constant_curvature' has no sensitivities or stable-branch search: use "
                              "model 'coupled' or 'point'")
         return _constant_curvature(robot, tau, opts)
+    if opts.model == "disks" and initial is None and history is None:  # from its limit as the disks get closer
+        initial = solve_static(robot, tau, displacements=q, slip=sg, device=device,
+                               options=replace(opts, model="coupled", sensitivities=False, stability="off",
+                                               error_estimate=False))
     dev = wp.get_device(device)
     require_memory(B * (opts.nodes + 1) * 400.0, f"nodes = {opts.nodes} for {B} rods: the shapes")
     problem, locked = _problem(robot, B, opts, dev)
