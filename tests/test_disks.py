@@ -154,3 +154,12 @@ def test_the_disk_model_agrees_with_the_independent_scipy_solver():
     np.testing.assert_allclose(sol.base_wrench[0, 3:], ref["m0"], atol=1e-11)
     np.testing.assert_allclose(sol.tendon_path_length[0], ref["path_lengths"], atol=1e-9)
     assert np.linalg.norm(sol.tip_position[0] - [0.0, 0.0, L]) > 0.01  # a real bend, not a straight rod
+
+
+def test_float32_costs_a_fraction_of_a_micrometre():
+    """The disk model in float32 (its chord iteration stops at 1e-6 of the tension) against
+    float64: 1.3e-7 m on a 73 degree bend of a 20 cm rod."""
+    rb = robot(10)
+    a = solve(rb, [[2.0]], nodes=40)
+    b = solve(rb, [[2.0]], nodes=40, precision="float32")
+    assert np.linalg.norm(b.tip_position[0] - a.tip_position[0]) < 1e-6
