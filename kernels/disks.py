@@ -12,18 +12,18 @@ at the hole, so n(s_j+) = n(s_j-) - sum F and m(s_j+) = m(s_j-) - sum (h_jk - p)
 disks the rod carries no tendon load. The load at disk j needs the chord to disk j + 1, which
 the state at s_j does not know: ``disk_jumps`` finds it by integrating ahead to the next disk
 (with the same steps the shooting then takes) from a guess of the chords, and repeating with
-the chords that come out until their pull stops moving. Alone, each repeat would shrink the
-error by about tau (r + spacing) spacing / EI (0.2-0.5 at the real robots' 5-20 N, more near
-buckling); an Anderson(1) step (the secant through the last two passes, on the disk's force and
-moment) speeds that up and keeps it going beyond 1. The guess mirrors the incoming chord about
-the hole path's tangent.
+the chords that come out until their pull stops moving. Alone, each repeat shrinks the error by
+a factor of order tau (r + spacing) spacing / EI (measured on v4, 22 N through a disk: 0.05;
+more near buckling); an Anderson(1) step (the secant through the last two passes, on the disk's
+force and moment) speeds that up and keeps it going beyond 1. The guess turns the incoming chord
+as the chord before it turned (at the first disk: mirrors it about the hole path's tangent).
 
 Tendon states: ``features.tendons`` is 4 x the tendon count K here, so E has three blocks of
 4K. Block 0 holds the hole each tendon last passed (3 per tendon, E[3k + i]), block 1 the path
 length less the arc length run (E[4K + k]) and then the current chords (E[5K + 3k + i]), block 2
 the unstretched length less the arc length run (E[8K + k]) and the chords before them
-(E[9K + 3k + i], for the next guess). The rates of kernels/rod.py take
-1 per unit s off the lengths and the disks add each chord's length as it ends.
+(E[9K + 3k + i], for the next guess). The rates of kernels/tendons.py (``chord_rates``) take 1
+per unit s off the lengths and the disks add each chord's length as it ends.
 
   disk_jumps   the tendon loads at a disk and the chords that leave it
 """
