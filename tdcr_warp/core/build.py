@@ -227,6 +227,11 @@ class Tables:
                    features=features, straight=StraightRod.of(robot))
 
     @property
+    def disks(self) -> bool:
+        """Whether these are the disk model's tables (a disk chain in ``dnext``)."""
+        return bool(self.dnext.max() >= 0)
+
+    @property
     def nu(self) -> int:
         """Shooting unknowns per rod: n(0), m(0) and a tension per displacement-controlled tendon."""
         return 6 + self.features.displaced

@@ -166,7 +166,7 @@ def parameter_tables(robot: Robot, tables: Tables, names, precision: str, nodes:
 
 def _probe_tables(rb: Robot, tables: Tables, name: str, nodes: int, specialize: bool, kink_loads: bool,
                   lengths: bool) -> Tables:
-    tp = Tables.of(rb, nodes, specialize, kink_loads, "solve", lengths, bool(tables.dnext.max() >= 0))
+    tp = Tables.of(rb, nodes, specialize, kink_loads, "solve", lengths, tables.disks)
     if tp.grid.shape[1] != tables.grid.shape[1] or tp.features != tables.features or \
             not np.array_equal(tp.term_node, tables.term_node) or not np.array_equal(tp.pnode, tables.pnode):
         raise InputError(f"parameter {name!r} changes the structure of the problem (its grid or physics)")
