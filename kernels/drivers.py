@@ -32,7 +32,8 @@ def module_names(dtype, integrator: str, model: str, dynamic: bool, rod: str, fe
     key = (f"{wp.types.type_repr(dtype)}_{integrator}_{model}_{'dyn' if dynamic else 'static'}_{rod}_"
            + "".join(str(int(f)) for f in features[:4]) + ("" if features.kinks else "_nokink")
            + (f"_k{features.tendons}" if features.tendons else "") + ("_mu" if features.friction else "")
-           + (f"_d{features.displaced}" if features.displaced else "") + ("_spline" if features.spline else ""))
+           + (f"_d{features.displaced}" if features.displaced else "") + ("_spline" if features.spline else "")
+           + ("_contact" if features.contact else "") + (f"_t{features.tip}" if features.tip else ""))
     return {grp: f"tdcr_warp_{grp}_{key}" for grp in ("fused", "probes", "evaluate")}
 
 
@@ -74,7 +75,7 @@ def make_iteration(dtype, nu: int, dynamic: bool):
 
 def _parts(dtype, integrator, model, dynamic, rod, features):
     """The structs and functions every kernel factory of a variant reads."""
-    nu = N_BASE + features.displaced
+    nu = N_BASE + features.displaced + features.tip
     st = make_structs(dtype, dynamic)
     return (st, make_newton(dtype, nu, dynamic), make_shoot(dtype, integrator, model, dynamic, rod, features),
             make_iteration(dtype, nu, dynamic), module_names(dtype, integrator, model, dynamic, rod, features))

@@ -20,6 +20,9 @@ from .layout import (
     FORCE_SCALE,
     LENGTH,
     MOMENT_SCALE,
+    TC_BASIS,
+    TC_COMPLIANCE,
+    TC_POINT,
     TIP_F,
     TIP_M,
     TO_BASE,
@@ -34,7 +37,7 @@ from .structs import make_rows, make_structs, tendon_vectors
 from .tendons import make_displacement
 from .variants import STAGES, Features
 
-N_BASE = 6  # n(0), m(0); + one tension per displacement-controlled tendon
+N_BASE = 6  # n(0), m(0); + one tension per displacement-controlled tendon, + a constrained tip's reaction
 
 
 @functools.cache
@@ -120,29 +123,49 @@ def make_tendon_outputs(dtype, dynamic: bool, tendons: int, friction: bool):
 
 
 @functools.cache
-def make_residual(dtype, dynamic: bool, tendons: int, displaced: int):
-    """The scaled shooting residual at the tip, and its scale to a length."""
+def make_residual(dtype, dynamic: bool, tendons: int, displaced: int, tip: int = 0):
+    """The scaled shooting residual at the tip, and its scale to a length (``tip``: the unknowns
+    of a constrained tip, after those of the displaced tendons)."""
     vec3 = wp.types.vector(3, dtype)
     evec = tendon_vectors(dtype, tendons)[1]
-    uvec = wp.types.vector(N_BASE + displaced, dtype)
+    uvec = wp.types.vector(N_BASE + displaced + tip, dtype)
+    first = N_BASE + displaced  # the first reaction unknown
     st = make_structs(dtype, dynamic)
     Model, Control = st.Model, st.Control
     rows = make_rows(dtype, dynamic)
-    length_residuals = make_displacement(dtype, dynamic, tendons, displaced).length_residuals
+    length_residuals = make_displacement(dtype, dynamic, tendons, displaced, tip).length_residuals
 
     @wp.func
-    def tip_residual(md: Model, ct: Control, b: int, x: uvec, n: vec3, m: vec3, E: evec):
-        """r = [(n(L+) - F_tip) / FORCE_SCALE, (m(L+) - L_tip) / MOMENT_SCALE] and the length
-        residuals of the displaced tendons."""
+    def tip_residual(md: Model, ct: Control, b: int, x: uvec, p: vec3, n: vec3, m: vec3, E: evec):
+        """r = [(n(L+) - F_tip - F_c) / FORCE_SCALE, (m(L+) - L_tip) / MOMENT_SCALE], the length
+        residuals of the displaced tendons and, with a constrained tip, (e_i . (p(L) - c) + kappa
+        lambda_i) / L: the tip held (kappa = 0; else a spring) by the reaction F_c = sum_i lambda_i
+        e_i, lambda_i = x_i FORCE_SCALE (layout.TC_POINT)."""
         fs = md.rod[rows.row(b, md.rod), FORCE_SCALE]
         ms = md.rod[rows.row(b, md.rod), MOMENT_SCALE]
-        rn = (n - rows.rvec(md, b, TIP_F)) / fs
+        react = vec3()
+        if wp.static(tip > 0):
+            it = rows.row(b, md.tipc)
+            for i in range(tip):
+                c = TC_BASIS + 3 * i
+                react += (x[first + i] * fs) * vec3(md.tipc[it, c], md.tipc[it, c + 1], md.tipc[it, c + 2])
+        rn = (n - rows.rvec(md, b, TIP_F) - react) / fs
         rm = (m - rows.rvec(md, b, TIP_M)) / ms
         res = uvec()
         for i in range(3):
             res[i] = rn[i]
             res[3 + i] = rm[i]
-        return length_residuals(md, ct, b, x, E, res)
+        res = length_residuals(md, ct, b, x, E, res)
+        if wp.static(tip > 0):
+            it = rows.row(b, md.tipc)
+            off = p - vec3(md.tipc[it, TC_POINT], md.tipc[it, TC_POINT + 1], md.tipc[it, TC_POINT + 2])
+            ell = md.rod[rows.row(b, md.rod), LENGTH]
+            soft = md.tipc[it, TC_COMPLIANCE] * md.rod[rows.row(b, md.rod), FORCE_SCALE]
+            for i in range(tip):
+                c = TC_BASIS + 3 * i
+                e = vec3(md.tipc[it, c], md.tipc[it, c + 1], md.tipc[it, c + 2])
+                res[first + i] = (wp.dot(e, off) + soft * x[first + i]) / ell
+        return res
 
     @wp.func
     def residual_scale(md: Model, b: int):
@@ -159,7 +182,7 @@ def make_shoot(dtype, integrator: str, model: str, dynamic: bool, rod: str, feat
     zero = dtype(0.0)
     K = features.tendons
     evec = tendon_vectors(dtype, K)[1]
-    uvec = wp.types.vector(N_BASE + features.displaced, dtype)
+    uvec = wp.types.vector(N_BASE + features.displaced + features.tip, dtype)
     st = make_structs(dtype, dynamic)
     Model, Control, Step = st.Model, st.Control, st.Step
     rf = make_rod_funcs(dtype, integrator, model, dynamic, rod, features)
@@ -168,7 +191,7 @@ def make_shoot(dtype, integrator: str, model: str, dynamic: bool, rod: str, feat
     tout = make_tendon_outputs(dtype, dynamic, K, features.friction)
     interval = make_interval(dtype, integrator, model, dynamic, rod, features).interval
     orth_error = make_stages(dtype, integrator).orth_error
-    resid = make_residual(dtype, dynamic, K, features.displaced)
+    resid = make_residual(dtype, dynamic, K, features.displaced, features.tip)
     stages = STAGES[integrator]
 
     @wp.func
@@ -212,6 +235,6 @@ def make_shoot(dtype, integrator: str, model: str, dynamic: bool, rod: str, feat
         if store != 0:
             out.orth[b] = orth
             tout.store_tendon_outputs(md, b, out, t0, E)
-        return resid.tip_residual(md, ct, b, x, n, m, E), p, R
+        return resid.tip_residual(md, ct, b, x, p, n, m, E), p, R
 
     return SimpleNamespace(shoot=shoot, residual_scale=resid.residual_scale, Nodes=Nodes)

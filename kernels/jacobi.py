@@ -455,9 +455,9 @@ def make_verdict_kernel(dtype, integrator: str, model: str, rod: str, features: 
     def shooting_jacobian(md: Model, ct: Control, fd: Fields, b: int, x: vecu, h: vecu):
         """J = dr/dx at the tip by forward differences of the trajectories."""
         J = matu()
-        r0 = resid.tip_residual(md, ct, b, x, fd.n[b, 0], fd.m[b, 0], fd.E[b, 0])
+        r0 = resid.tip_residual(md, ct, b, x, fd.p[b, 0], fd.n[b, 0], fd.m[b, 0], fd.E[b, 0])
         for j in range(1, nu + 1):
-            rj = resid.tip_residual(md, ct, b, probe_x(x, h, j), fd.n[b, j], fd.m[b, j], fd.E[b, j])
+            rj = resid.tip_residual(md, ct, b, probe_x(x, h, j), fd.p[b, j], fd.n[b, j], fd.m[b, j], fd.E[b, j])
             for i in range(nu):
                 J[i, j - 1] = (rj[i] - r0[i]) / h[j - 1]
         return J

@@ -26,11 +26,33 @@ ROD_WIDTH = 21
 T_X0, T_Y0, T_A, T_W, T_PHASE, T_DX, T_DY, T_MU, T_COMPLIANCE, T_SLACK_SLOPE = range(10)
 TENDON_WIDTH = 10
 
+# ``obst`` array, shape (1 or B, O, OB_WIDTH): the obstacles (world frame, SI units) and the
+# contact law of the rod with them (kernels/contact.py).
+#   OB_KIND           PLANE, SPHERE, CAPSULE, TUBE or BENT_TUBE
+#   OB_A..+2          plane: a point on it; sphere: centre; capsule, tube: axis start; bent tube: its start
+#   OB_B..+2          plane: unit normal (the free side); capsule, tube: axis end; bent tube: unit tangent at start
+#   OB_C..+2          bent tube: unit vector from its start toward the centre of its bend
+#   OB_RADIUS         sphere, capsule: radius; tube, bent tube: inner radius [m]
+#   OB_BEND, OB_ANGLE bent tube: radius of the bend's centre line [m] and its angle [rad]
+#   OB_STIFF          penalty stiffness k of the contact [N/m per m of rod]
+#   OB_REACH          the rod's contact radius (its radius) [m]
+PLANE, SPHERE, CAPSULE, TUBE, BENT_TUBE = range(5)
+OB_KIND, OB_A, OB_B, OB_C, OB_RADIUS, OB_BEND, OB_ANGLE, OB_STIFF, OB_REACH = 0, 1, 4, 7, 10, 11, 12, 13, 14
+OB_WIDTH = 15
+
+# ``tipc`` array, shape (1 or B, TC_WIDTH): a constrained tip (Robot.tip_constraint). TC_POINT..+2
+# the point c the tip is held to; TC_BASIS..+8 up to three unit vectors e_i: the tip is held
+# e_i . (p(L) - c) = -kappa lambda_i by a reaction sum_i lambda_i e_i, lambda_i shooting unknowns
+# (a point: 3, a line: the 2 across it, a plane: its normal); TC_COMPLIANCE kappa [m/N]: 0 holds
+# the tip, > 0 a spring of stiffness 1 / kappa (the host's path toward holding it).
+TC_POINT, TC_BASIS, TC_COMPLIANCE = 0, 3, 12
+TC_WIDTH = 13
+
 # ``tendon_out`` columns (per rod and tendon) written by the final integration of a solve.
 TO_BASE, TO_END, TO_PATH, TO_FREE, TO_TURN = range(5)  # tension at s=0 and at the end [N],
 TO_WIDTH = 5  # stretched path length, unstretched length [m], total turning of the path [rad]
 
-# Status bits of a rod's solve (uint8-compatible).
+# Status bits of a rod's solve (uint16-compatible).
 CONVERGED = 1
 MAX_ITER = 2
 NONFINITE = 4
@@ -39,6 +61,7 @@ STALLED = 16
 PRECISION_LIMITED = 32  # with CONVERGED: stopped at the round-off floor, residual above tol
 UNSETTLED = 64  # displacement control: the taut / slack set of the tendons did not settle
 UNSTABLE = 128  # with CONVERGED: an equilibrium, but an unstable one (tdcr_warp/physics/stability.py)
+PENETRATION = 256  # contact not resolved: a rigid obstacle penetrated beyond tolerance, or the base inside one
 
 STATUS_NAMES = {
     CONVERGED: "converged",
@@ -49,6 +72,7 @@ STATUS_NAMES = {
     PRECISION_LIMITED: "precision-limited (residual at round-off, above tol)",
     UNSETTLED: "taut/slack set of the displaced tendons did not settle",
     UNSTABLE: "unstable equilibrium",
+    PENETRATION: "contact not resolved (a rigid obstacle penetrated beyond contact_tolerance, or the base inside an obstacle)",
 }
 
 # ``dyn`` array, shape (1 or B, DYN_WIDTH): dynamics parameters, SI units.

@@ -3,7 +3,7 @@
   node_busy            whether anything acts at a node
   span_end             the end of a step over several intervals (to the next busy node)
   node_jumps           the jumps of n, m (and E) at a node: tendon ends, point forces, kinks,
-                       the spacer disks (kernels/disks.py)
+                       the spacer disks (kernels/disks.py), contact (kernels/contact.py)
 
 ``make_rod_funcs(dtype, integrator, model, dynamic, rod, features)`` returns them with the
 right-hand side for one precision, one tendon model ("coupled", "point" or "disks"), statics
@@ -15,6 +15,7 @@ from types import SimpleNamespace
 
 import warp as wp
 
+from .contact import make_contact
 from .disks import make_disk_jumps
 from .friction import make_profiles, make_tensions
 from .rod import make_point_jumps, make_rhs
@@ -36,9 +37,12 @@ def make_node_busy(dtype, model: str, dynamic: bool, features: Features):
 
     @wp.func
     def node_busy(md: Model, b: int, node: int):
-        """1 if a tendon ends, a disk sits or a point force acts at ``node``."""
+        """1 if a tendon ends, a disk sits or a point force acts at ``node`` (with obstacles:
+        every node, where contact may push)."""
         busy = int(0)
-        if wp.static(disks):
+        if wp.static(features.contact):
+            busy = 1
+        elif wp.static(disks):
             if md.dnext[row(b, md.dnext), node] >= 0:
                 busy = 1
         else:
@@ -85,19 +89,26 @@ def make_node_jumps(dtype, integrator: str, model: str, dynamic: bool, rod: str,
     dj = make_disk_jumps(dtype, integrator, rod, features) if disks else None
     bz = make_node_busy(dtype, model, dynamic, features)
     node_busy = bz.node_busy
+    contact_force = make_contact(dtype, dynamic).contact_force
 
     @wp.func
     def node_jumps(md: Model, ct: Control, sp: Step, b: int, s: dtype, p: vec3, R: mat33, n: vec3, m: vec3,
                    q: vec3, w: vec3, t0: kvec, E: evec, node: int, slot_pre: int, slot_post: int, store: int):
         """Point loads at ``node``: n(s+) = n(s-) - F, m(s+) = m(s-) - L (tendon ends, point
         forces, in the coupled model the kinks of the tendons that continue, in the disk model
-        the disk's chords). A node without any of them (most nodes) returns at once, unless
-        dynamics stores its slots. Returns n, m and E after the node."""
+        the disk's chords, the obstacles' contact). A node without any of them (most nodes)
+        returns at once, unless dynamics stores its slots. Returns n, m and E after the node."""
         busy = node_busy(md, b, node)
         if wp.static(dynamic):
             busy = busy | store
         if busy == 0:
             return n, m, E
+        touch = int(0)
+        if wp.static(features.contact):
+            fc, _gap = contact_force(md, b, node, p)
+            if fc[0] != zero or fc[1] != zero or fc[2] != zero:
+                n = n - fc
+                touch = 1
         if wp.static(disks):
             n, _jump = point_jumps(md, b, node, n)
             return dj.disk_jumps(md, ct, sp, b, s, p, R, n, m, t0, E, node)
@@ -105,7 +116,7 @@ def make_node_jumps(dtype, integrator: str, model: str, dynamic: bool, rod: str,
         v, u = law.strains(md, sp, b, R, n, m, slot_pre)
         n, m, jump = loads.tendon_end_loads(md, ct, b, s, R, n, m, v, u, node, tau)
         n, pj = point_jumps(md, b, node, n)
-        jump = jump | pj
+        jump = jump | pj | touch
         E2 = E
         if wp.static(model == "coupled" and features.kinks):
             if jump != 0:
@@ -140,13 +151,15 @@ def make_rod_funcs(dtype, integrator: str, model: str, dynamic: bool, rod: str =
     if rod not in RODS:
         raise ValueError(f"rod must be one of {RODS}, got {rod!r}")
     disks = model == "disks"
-    if disks and (dynamic or features.friction or features.tendons % 4):
-        raise ValueError("the disk model is static and frictionless, with 4 x the tendon count as features.tendons")
+    if disks and (dynamic or features.friction or features.contact or features.tendons % 4):
+        raise ValueError("the disk model is static, frictionless and free of obstacles, with 4 x the tendon count "
+                         "as features.tendons")
     st = make_structs(dtype, dynamic)
     jumps = make_node_jumps(dtype, integrator, model, dynamic, rod, features)
     return SimpleNamespace(
         vec3=wp.types.vector(3, dtype), mat33=wp.types.matrix((3, 3), dtype), Model=st.Model, Control=st.Control,
         Step=st.Step, row=make_rows(dtype, dynamic).row, rhs=make_rhs(dtype, model, dynamic, rod, features).rhs,
         node_jumps=jumps.node_jumps, node_busy=jumps.node_busy, span_end=jumps.span_end,
-        base_tensions=make_displacement(dtype, dynamic, features.tendons, features.displaced).base_tensions,
+        base_tensions=make_displacement(dtype, dynamic, features.tendons, features.displaced,
+                                        features.tip).base_tensions,
         tstate=features.tendons > 0, K=features.tendons // 4 if disks else features.tendons)

@@ -42,11 +42,11 @@ def make_shooting_kernels(dtype, integrator: str, model: str, dynamic: bool = Fa
         raise ValueError(f"integrator must be one of {INTEGRATORS}, got {integrator!r}")
     variant = (dtype, integrator, model, dynamic, rod, features)
     rf = make_rod_funcs(dtype, integrator, model, dynamic, rod, features)
-    nu = N_BASE + features.displaced
+    nu = N_BASE + features.displaced + features.tip
     nt = make_newton(dtype, nu, dynamic)
     probes = make_probe_kernels(*variant)
     # statics: the stability verdict shares the evaluate module (both are loaded together)
-    verdict = None if dynamic else make_verdict_kernel(dtype, integrator, model, rod, features)
+    verdict = None if dynamic or features.tip else make_verdict_kernel(dtype, integrator, model, rod, features)
     return SimpleNamespace(solve=make_fused_kernel(*variant), probe=probes.probe, update=probes.update,
                            finish=probes.finish, begin=probes.begin, evaluate=make_evaluate_kernel(*variant),
                            jacobian=None if dynamic else make_jacobian_kernel(*variant),

@@ -45,8 +45,11 @@ def make_structs(dtype, dynamic: bool):
         dnext: wp.array2d(dtype=int)  # (1|B, N+1) disk model: at node 0 and each disk the next disk's node (its own at the last), else -1
         tmode: wp.array2d(dtype=int)  # (1|B, K) shooting unknown 6 + j of a displacement-controlled tendon, or -1
         route: wp.array4d(dtype=dtype)  # (1, K, S, 9) spline segments: s_i, then x and y cubic coefficients
+        obst: wp.array3d(dtype=dtype)  # (1|B, O, OB_WIDTH) obstacles and the contact law (kernels/contact.py)
+        tipc: wp.array2d(dtype=dtype)  # (1|B, TC_WIDTH) a constrained tip: the point and the directions held
         n_tendons: int
         n_points: int
+        n_obst: int
 
     @wp.struct
     class Control:

@@ -337,13 +337,14 @@ def make_chord_rates(dtype, tendons: int):
 
 
 @functools.cache
-def make_displacement(dtype, dynamic: bool, tendons: int, displaced: int):
+def make_displacement(dtype, dynamic: bool, tendons: int, displaced: int, tip: int = 0):
     """Displacement control: the tensions at the motor and the length residuals (``displaced``:
-    how many tendons are displacement-controlled, each one more shooting unknown)."""
+    how many tendons are displacement-controlled, each one more shooting unknown; ``tip``: the
+    unknowns of a constrained tip after them)."""
     zero = dtype(0.0)
     K = tendons
     kvec, evec = tendon_vectors(dtype, K)
-    uvec = wp.types.vector(6 + displaced, dtype)  # the shooting unknowns
+    uvec = wp.types.vector(6 + displaced + tip, dtype)  # the shooting unknowns
     st = make_structs(dtype, dynamic)
     Model, Control = st.Model, st.Control
     row = make_rows(dtype, dynamic).row

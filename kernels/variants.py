@@ -24,6 +24,8 @@ class Features(NamedTuple):
     tendons: int = 0  # K > 0: per-tendon states along s (turning, path length, unstretched length); 4K: disks
     displaced: int = 0  # displacement-controlled tendons: one shooting unknown and residual each
     spline: bool = False  # tendons routed through points (cubic segments in Model.route)
+    contact: bool = False  # obstacles: a penalty contact force at every node (kernels/contact.py)
+    tip: int = 0  # a constrained tip: the reaction's unknowns and residuals (3 point, 2 line, 1 plane)
 
 
 ALL = Features()

@@ -109,7 +109,8 @@ def _rod_arrays(scene, sol) -> dict:
                 "turning": sol.tendon_turning, "slip": sol.slip, "tip_error_estimate": sol.tip_error_estimate,
                 "stability_index": sol.stability_index, "stable": sol.stable, "stability_margin": sol.stability_margin,
                 "lagrangian_error": sol.lagrangian_error,
-                "branch": sol.branch, "multiple_stable": sol.multiple_stable}
+                "branch": sol.branch, "multiple_stable": sol.multiple_stable, "penetration": sol.penetration,
+                "tip_reaction": sol.tip_reaction}
     return res | {k: v for k, v in optional.items() if v is not None}
 
 

@@ -19,7 +19,7 @@ import warp as wp
 from tdcr_warp.kernels import layout
 from tdcr_warp.kernels.structs import SLOT_WIDTH
 from tdcr_warp.kernels.variants import ALL, Features
-from tdcr_warp.model.robot import InputError, Robot
+from tdcr_warp.model.robot import InputError, Robot, route_table
 
 PRECISIONS = {"float64": (wp.float64, np.float64), "float32": (wp.float32, np.float32)}
 
@@ -101,6 +101,21 @@ def disk_nodes(grid: np.ndarray, disks: np.ndarray) -> np.ndarray:
     return out
 
 
+RIGID_START = 1e-2  # a rigid obstacle's first stiffness: a load of E I / L^3 per length sinks 1% of the radius
+
+
+def pack_obstacles(robot: Robot) -> np.ndarray:
+    """(1|B, O, layout.OB_WIDTH): each obstacle's geometry, its penalty stiffness (a rigid one's
+    first, k0 = E I / (L^3 0.01 r): stiffened by tdcr_warp.physics.contact) and the rod's radius."""
+    if not robot.obstacles:
+        return np.zeros((1, 0, layout.OB_WIDTH))
+    k0 = robot.section()["kbt"][:, 0] / (robot.length**3 * RIGID_START * robot.radius)
+    rows = [_columns([ob.geometry(), (k0 if ob.rigid else ob.stiffness)[:, None], robot.radius[:, None]],
+                     layout.OB_WIDTH) for ob in robot.obstacles]
+    b = max(r.shape[0] for r in rows)
+    return np.stack([np.broadcast_to(r, (b, layout.OB_WIDTH)) for r in rows], axis=1)
+
+
 def _columns(cols: list[np.ndarray], width: int) -> np.ndarray:
     b = max(c.shape[0] for c in cols)
     out = np.concatenate([np.broadcast_to(c, (b, c.shape[1])) for c in cols], axis=1)
@@ -163,13 +178,16 @@ def scene_features(robot: Robot, tendon: np.ndarray, specialize: bool, kink_load
     tendon in tension control without friction, integrating the tendon lengths (the reference
     state of displacement control); ``lengths``: integrate them anyway. ``disks``: the disk model,
     whose tendon states (always) hold each tendon's last hole and chord too: 4 x the tendon count
-    (kernels/disks.py)."""
+    (kernels/disks.py). Obstacles, like the tendon states, are structure: contact compiles in
+    only where the robot has them."""
     friction = mode == "solve" and robot.has_friction
     displaced = len(robot.displaced) if mode == "solve" else 0
     states = robot.n_tendons if (friction or displaced or lengths or mode == "reference" or disks) else 0
     states *= 4 if disks else 1
     spline = any(t.routing == "points" for t in robot.tendons)
-    tendons = dict(kinks=kink_loads, friction=friction, tendons=states, displaced=displaced, spline=spline)
+    tendons = dict(kinks=kink_loads, friction=friction, tendons=states, displaced=displaced, spline=spline,
+                   contact=len(robot.obstacles) > 0,
+                   tip=0 if robot.tip_constraint is None or mode != "solve" else robot.tip_constraint.count)
     if not specialize:
         return ALL._replace(**tendons)
     return Features(gravity=bool(np.any(robot.gravity != 0) and np.any(robot.density > 0)),
@@ -184,9 +202,10 @@ class Tables:
 
     rod, dyn, tendon, pforce: see kernels/layout.py; grid (1|B, N+1) [m]; term_node (1|B, K)
     and pnode (1|B, P): node indices; dnext (1|B, N+1): the disk model's next disk from node 0
-    and every disk (``disk_nodes``; (1, 1) of -1 in the other models); tendon_len (1|B, K): termination arc lengths [m] (the
+    and every disk (``disk_nodes``; (1, 1) of -1 in the other models); obst (1|B, O, OB_WIDTH): the
+    obstacles (``pack_obstacles``); tipc (1|B, TC_WIDTH): a constrained tip (zeros: none); tendon_len (1|B, K): termination arc lengths [m] (the
     kernels' tendon lengths are relative to them); route (1, K, S, 9): the spline segments of tendons routed
-    through points (Robot.route_table); tmode (1, K): the shooting unknown 6 + j of each
+    through points (robot.route_table); tmode (1, K): the shooting unknown 6 + j of each
     displacement-controlled tendon (-1: tension control); features: the physics the robot
     contains; straight: its Newton start. Derived from the rod table: ``scales`` and ``stiffness``.
     """
@@ -202,6 +221,8 @@ class Tables:
     tmode: np.ndarray
     route: np.ndarray
     tendon_len: np.ndarray
+    obst: np.ndarray
+    tipc: np.ndarray
     features: Features
     straight: StraightRod
 
@@ -212,6 +233,8 @@ class Tables:
         tendon_len = robot.tendon_lengths() if robot.tendons else np.zeros((1, 0))
         if disks:
             check_disk_model(robot, tendon_len)
+            if robot.obstacles:
+                raise InputError("model = 'disks' does not model contact yet: use model = 'coupled' with obstacles")
         point_s, point_f = robot.pack_point_forces(disk_weights=disks)
         knots = [t.points[1:-1, 0] for t in robot.tendons if t.routing == "points"] + ([robot.disks] if disks else [])
         grid, term_node, point_node = make_grid(robot.length, tendon_len, point_s, nodes,
@@ -223,8 +246,9 @@ class Tables:
         if features.displaced:
             tmode[0, list(robot.displaced)] = np.arange(features.displaced)
         return cls(rod=pack_rod(robot), dyn=pack_dynamics(robot), tendon=tendon, grid=grid, term_node=term_node,
-                   pforce=point_f, pnode=point_node, dnext=dnext, tmode=tmode, route=robot.route_table(), tendon_len=tendon_len,
-                   features=features, straight=StraightRod.of(robot))
+                   pforce=point_f, pnode=point_node, dnext=dnext, tmode=tmode, route=route_table(robot), tendon_len=tendon_len,
+                   obst=pack_obstacles(robot), features=features,
+                   tipc=np.zeros((1, layout.TC_WIDTH)) if not features.tip else robot.tip_constraint.table(), straight=StraightRod.of(robot))
 
     @property
     def disks(self) -> bool:
@@ -233,8 +257,9 @@ class Tables:
 
     @property
     def nu(self) -> int:
-        """Shooting unknowns per rod: n(0), m(0) and a tension per displacement-controlled tendon."""
-        return 6 + self.features.displaced
+        """Shooting unknowns per rod: n(0), m(0), a tension per displacement-controlled tendon and
+        the reaction of a constrained tip."""
+        return 6 + self.features.displaced + self.features.tip
 
     def rows(self, name: str, lo: int, hi: int) -> np.ndarray:
         """Rows lo:hi of table ``name``; a shared table (leading 1) stays as it is."""
@@ -247,7 +272,7 @@ class Tables:
         displaced tendon]: the scaled unknowns are [n(0), m(0), tensions] / scales (taken once
         from the rod table: every solve uses them)."""
         f, m = self.rod[:, layout.FORCE_SCALE], self.rod[:, layout.MOMENT_SCALE]
-        return np.stack([f, f, f, m, m, m] + [f] * self.features.displaced, axis=1)
+        return np.stack([f, f, f, m, m, m] + [f] * (self.features.displaced + self.features.tip), axis=1)
 
     def scale_rows(self, B: int) -> np.ndarray:
         return np.broadcast_to(self.scales, (B, self.nu))
@@ -375,8 +400,11 @@ def put_model(kern, dev: Device, tables: Tables, lo: int, hi: int):
     md.dnext = dev.array(tables.rows("dnext", lo, hi), np.int32)
     md.tmode = dev.array(_pad(tables.tmode, (1,)), np.int32)
     md.route = dev.array(tables.route if tables.route.shape[1] else np.zeros((1, 1, 1, 9)))
+    md.obst = dev.array(_pad(tables.rows("obst", lo, hi), (1, layout.OB_WIDTH)))
+    md.tipc = dev.array(tables.rows("tipc", lo, hi))
     md.n_tendons = tables.tendon.shape[1]
     md.n_points = tables.pforce.shape[1]
+    md.n_obst = tables.obst.shape[1]
     return md
 
 

@@ -4,6 +4,7 @@ from the last. Every choice is made per rod, so a rod's answer never depends on 
 neighbours.
 
 - ``load_continuation`` (statics): tensions and external loads scaled by lam = 1/c .. 1;
+- ``holding_path`` (statics, a constrained tip): a spring to the held point, ever stiffer, then held;
 - ``tension_increment`` (dynamics): tau(i-1) + lam (tau(i) - tau(i-1)) in one time step;
 - ``added_damping`` (dynamics): the step of a heavily damped copy, damping + s K / c0,
   s = 1000^(1 - lam) - 1 going to 0.
@@ -18,6 +19,7 @@ from tdcr_warp.kernels import layout
 
 LARGE_LOAD = 1.5  # scaled bending load of the straight-rod start: |m(0)| L / EI + |n_xy(0)| L^2 / EI
 MAX_CONTINUATION = 64
+HOLDING_DECADES = 6  # a constrained tip's spring: from its first compliance down 6 decades, then held
 
 
 def follow(sh: Shooting, set_load, steps: np.ndarray, mask: np.ndarray, start, newton: dict):
@@ -93,6 +95,35 @@ def load_continuation(sh: Shooting, rod0: np.ndarray, pforce0: np.ndarray, tau: 
     it, sh_n = sh.counts()
     it[touched], sh_n[touched] = iters[touched], shots[touched]
     sh.set_counts(it, sh_n)
+
+
+def holding_path(sh: Shooting, tipc: np.ndarray, compliance: np.ndarray, start: np.ndarray, mask: np.ndarray,
+                 newton: dict) -> None:
+    """Statics, a constrained tip: the rods in ``mask`` held first by a spring of compliance
+    ``compliance`` (b,) [m/N] to the held point, its compliance then shrunk 10-fold per step
+    (HOLDING_DECADES of them) and last set to 0 (held), each step from the last, the first from
+    ``start`` (b, nu): a tip pulled ever harder toward its place follows the path a growing tip
+    force takes it along, where a straight Newton step would ask the near-inextensible rod to
+    stretch. A Jacobian at every iterate; iterations and integrations add up."""
+    md = sh.model
+    own = md.tipc
+    table = np.array(np.broadcast_to(tipc, (sh.b, tipc.shape[1])))
+    md.tipc = sh.dev.array(table)
+    steps = HOLDING_DECADES + 1
+
+    def set_compliance(lam):
+        t = table.copy()
+        t[:, layout.TC_COMPLIANCE] = np.where(lam < 1.0, compliance * 10.0 ** (1.0 - lam * steps), 0.0)
+        sh.dev.put(md.tipc, t)
+
+    try:
+        iters, shots = follow(sh, set_compliance, np.full(sh.b, steps), mask, start, newton | {"broyden": False})
+    finally:
+        md.tipc = own
+    touched = shots > 0
+    it, sn = sh.counts()
+    it[touched], sn[touched] = iters[touched], shots[touched]
+    sh.set_counts(it, sn)
 
 
 def retry(sh: Shooting, set_load, failed: np.ndarray, start, newton: dict, continuation: int) -> np.ndarray:

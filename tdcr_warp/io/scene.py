@@ -21,9 +21,11 @@ from tdcr_warp.io.drawing import display_options
 from tdcr_warp.model.options import StaticOptions
 from tdcr_warp.model.robot import (
     InputError,
+    Obstacle,
     PointForce,
     Robot,
     Tendon,
+    TipConstraint,
     check_displacements,
     check_slip,
     check_tensions,
@@ -375,7 +377,8 @@ def _tendon(t: Fields) -> Tendon:
 
 
 def _robot(scene: Fields) -> Robot:
-    """[robot], [[tendons]], [loads] (with [[loads.point_forces]]) and the damping of [dynamics]."""
+    """[robot], [[tendons]], [loads] (with [[loads.point_forces]]), the damping of [dynamics],
+    [[obstacles]] and [tip]."""
     kw = scene.table("robot").given()
     tendons = [_tendon(t) for t in scene.tables("tendons")]
     points = []
@@ -386,7 +389,10 @@ def _robot(scene: Fields) -> Robot:
     dyn = scene.table("dynamics")
     if dyn is not None:
         kw |= dyn.given("damping_shear", "damping_bending", "drag")
-    return Robot(tendons=tendons, point_forces=points, **kw)
+    obstacles = [_build(Obstacle, o.given(), o.where) for o in scene.tables("obstacles")]
+    tip = scene.table("tip")
+    held = None if tip is None else _build(TipConstraint, tip.given(), tip.where)
+    return Robot(tendons=tendons, point_forces=points, obstacles=obstacles, tip_constraint=held, **kw)
 
 
 def _tensions(act: Fields, robot: Robot) -> np.ndarray:

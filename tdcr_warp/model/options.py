@@ -88,7 +88,10 @@ class StaticOptions:
     device, tdcr_warp/physics/stability.py, about 1 + nu integrations more; an unstable one is
     flagged UNSTABLE and is not a success), "stable" (check, and where an equilibrium is unstable
     search for a stable one by restarts, reporting which branch was returned) or "off" (the bare
-    solve, no verdict).
+    solve, no verdict). contact_tolerance: the penetration of a rigid obstacle allowed, as a
+    fraction of the rod's radius (rigid obstacles are stiffened until it holds; beyond it a rod
+    is flagged PENETRATION). contact_steps: the most stiffenings per solve
+    (tdcr_warp/physics/contact.py).
     """
 
     nodes: int = 50
@@ -109,6 +112,8 @@ class StaticOptions:
     tendon_states: bool = False
     sensitivities: bool = False
     stability: str = "check"
+    contact_tolerance: float = 0.01
+    contact_steps: int = 8
 
     def __post_init__(self):
         def integer(v, low, high=10**9):
@@ -139,6 +144,8 @@ class StaticOptions:
             ("tendon_states", isinstance(self.tendon_states, bool), "true or false"),
             ("sensitivities", isinstance(self.sensitivities, bool), "true or false"),
             ("stability", one_of(self.stability, STABILITY), f"one of {STABILITY}"),
+            ("contact_tolerance", positive(self.contact_tolerance), "a positive number"),
+            ("contact_steps", integer(self.contact_steps, 0, 100), "an integer in [0, 100]"),
         ]
         for name, ok, what in checks:
             if not ok:

@@ -10,73 +10,15 @@ from __future__ import annotations
 
 import math
 import numbers
-import os
 from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["InputError", "PointForce", "Robot", "Tendon", "check_command", "check_displacements", "check_slip",
-           "check_tensions", "real_array"]
+from tdcr_warp.model.checks import InputError, as_field, check_values, real_array, require_memory
+from tdcr_warp.model.world import Obstacle, TipConstraint
 
-
-class InputError(ValueError):
-    """Bad user input; the message names the field and the offending value."""
-
-
-def require_memory(nbytes: float, what: str) -> None:
-    """An InputError naming ``what`` if it needs more than half of this machine's memory
-    (rather than an allocation that swaps, hangs or is killed)."""
-    try:
-        total = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
-    except (AttributeError, ValueError, OSError):
-        return
-    if nbytes > total / 2:
-        raise InputError(f"{what} needs {nbytes / 2**30:,.1f} GiB, more than half of this machine's "
-                         f"{total / 2**30:.0f} GiB")
-
-
-_KINDS = {"b": "true/false", "c": "a complex number", "U": "text", "S": "text", "M": "a date", "m": "a time span"}
-
-
-def real_array(value, name: str, copy: bool = True) -> np.ndarray:
-    """``value`` as a float64 array (a new one unless ``copy`` is false), or an InputError naming
-    ``name`` for anything but real numbers (complex numbers, text, booleans, dates or other
-    objects; ragged nesting), rather than a silent cast (a complex number would lose its imaginary
-    part)."""
-    try:
-        arr = np.asarray(value)
-    except (TypeError, ValueError):
-        raise InputError(f"{name}: expected a number or a rectangular array of numbers, got {value!r}") from None
-    if arr.dtype.kind == "O":  # Python integers beyond int64 (fine), or None, dates, tables, ...
-        bad = [x for x in arr.flat if isinstance(x, (bool, np.bool_)) or not isinstance(x, numbers.Real)]
-        odd = repr(bad[0]) if bad else None
-    else:
-        odd = None if arr.dtype.kind in "iuf" else _KINDS.get(arr.dtype.kind, str(arr.dtype))
-    if odd is not None:
-        raise InputError(f"{name}: expected real numbers, got {odd} in {value!r}")
-    return arr.astype(np.float64, copy=copy)
-
-
-def _as_field(name: str, value, tail: tuple[int, ...]) -> np.ndarray:
-    """Return ``value`` as a float64 array of shape (1 or B, *tail)."""
-    arr = real_array(value, name)
-    if arr.shape == tail:
-        arr = arr[None]
-    if arr.ndim != len(tail) + 1 or arr.shape[1:] != tail or arr.shape[0] < 1:
-        want = f"{tail} or (B, {', '.join(map(str, tail))})" if tail else "a number or shape (B,)"
-        raise InputError(f"{name}: expected {want}, got shape {arr.shape}")
-    bad = ~np.isfinite(arr)
-    if bad.any():
-        idx = np.argwhere(bad)[0]
-        raise InputError(f"{name}: non-finite value {float(arr[tuple(idx)])!r} (rod {idx[0]})")
-    arr.flags.writeable = False  # a Robot is immutable: solvers cache what they build from it
-    return arr
-
-
-def _check(name: str, arr: np.ndarray, ok: np.ndarray, what: str) -> None:
-    if not ok.all():
-        idx = np.argwhere(~ok)[0]
-        raise InputError(f"{name} must be {what}, got {float(arr[tuple(idx)])!r} (rod {idx[0]})")
+__all__ = ["InputError", "Obstacle", "PointForce", "Robot", "Tendon", "TipConstraint", "check_command", "check_displacements",
+           "check_slip", "check_tensions", "real_array", "require_memory", "route_table"]
 
 
 def _batch(fields: dict[str, np.ndarray]) -> int:
@@ -158,23 +100,23 @@ class Tendon:
             raise InputError(f"tendon control must be one of {CONTROLS}, got {self.control!r}")
         for name in ("offset", "helix_radius", "turns", "phase", "compliance", "pretension", "friction"):
             tail = (2,) if name == "offset" else ()
-            object.__setattr__(self, name, _as_field(f"tendon {name}", getattr(self, name), tail))
+            object.__setattr__(self, name, as_field(f"tendon {name}", getattr(self, name), tail))
         for name, what in (("compliance", "compliance [1/N]"), ("pretension", "pretension [N]"),
                            ("friction", "friction coefficient mu")):
-            _check(f"tendon {name}", getattr(self, name), getattr(self, name) >= 0, f">= 0 (a {what})")
+            check_values(f"tendon {name}", getattr(self, name), getattr(self, name) >= 0, f">= 0 (a {what})")
         if self.length is not None:
-            object.__setattr__(self, "length", _as_field("tendon length", self.length, ()))
-            _check("tendon length", self.length, self.length > 0, "positive")
+            object.__setattr__(self, "length", as_field("tendon length", self.length, ()))
+            check_values("tendon length", self.length, self.length > 0, "positive")
         if self.routing == "linear":
             if self.offset_end is None:
                 raise InputError("tendon offset_end is required with routing = 'linear'")
-            object.__setattr__(self, "offset_end", _as_field("tendon offset_end", self.offset_end, (2,)))
+            object.__setattr__(self, "offset_end", as_field("tendon offset_end", self.offset_end, (2,)))
         elif self.offset_end is not None:
             raise InputError(f"tendon offset_end is only used with routing = 'linear', got routing = {self.routing!r}")
         if self.routing == "helix":
-            _check("tendon helix_radius", self.helix_radius, self.helix_radius >= 0, ">= 0")
+            check_values("tendon helix_radius", self.helix_radius, self.helix_radius >= 0, ">= 0")
         else:
-            _check(f"tendon helix_radius ({self.routing} routing)", self.helix_radius, self.helix_radius == 0, "0")
+            check_values(f"tendon helix_radius ({self.routing} routing)", self.helix_radius, self.helix_radius == 0, "0")
         if self.routing == "points":
             pts = real_array(self.points, "tendon points")
             if pts.ndim != 2 or pts.shape[1] != 3 or pts.shape[0] < 2:
@@ -211,20 +153,20 @@ class PointForce:
     force: object
 
     def __post_init__(self):
-        object.__setattr__(self, "s", _as_field("point force s", self.s, ()))
-        object.__setattr__(self, "force", _as_field("point force force", self.force, (3,)))
-        _check("point force s", self.s, self.s > 0, "positive")
+        object.__setattr__(self, "s", as_field("point force s", self.s, ()))
+        object.__setattr__(self, "force", as_field("point force force", self.force, (3,)))
+        check_values("point force s", self.s, self.s > 0, "positive")
 
 
 @dataclass(frozen=True)
 class Robot:
     """A batch of B tendon-driven rods clamped at the origin, leaving along +z.
 
-    length [m], youngs_modulus [Pa], poisson_ratio [-], radius [m], density [kg/m^3]:
-    float or (B,). precurvature u* [1/m] (body frame), gravity [m/s^2], tip_force [N],
-    tip_moment [N m] (world frame): (3,) or (B, 3). tendons: sequence of :class:`Tendon`;
-    point_forces: sequence of :class:`PointForce`. disks, disk_mass: the spacer disks of the
-    tendon model "disks" (``_set_disk_fields``).
+    length [m], youngs_modulus [Pa], poisson_ratio [-], radius [m], density [kg/m^3]: float or (B,). precurvature u*
+    [1/m] (body frame), gravity [m/s^2], tip_force [N], tip_moment [N m] (world frame): (3,) or (B, 3). tendons:
+    sequence of :class:`Tendon`; point_forces: sequence of :class:`PointForce`. disks, disk_mass: the spacer disks
+    of the tendon model "disks" (``_set_disk_fields``). obstacles: :class:`Obstacle` s, tip_constraint: a
+    :class:`TipConstraint` or None (tdcr_warp.model.world).
     """
 
     length: object = 0.5
@@ -244,16 +186,20 @@ class Robot:
     disk_radius: object = None
     disks: object = ()
     disk_mass: object = 0.0
+    obstacles: tuple = ()
+    tip_constraint: object = None
     batch_size: int = field(init=False)
 
     def __post_init__(self):
         for name in SCALARS:
-            object.__setattr__(self, name, _as_field(name, getattr(self, name), ()))
+            object.__setattr__(self, name, as_field(name, getattr(self, name), ()))
         for name in VECTORS:
-            object.__setattr__(self, name, _as_field(name, getattr(self, name), (3,)))
+            object.__setattr__(self, name, as_field(name, getattr(self, name), (3,)))
         _check_ranges(self)
         object.__setattr__(self, "tendons", _items("tendons", self.tendons, Tendon))
         object.__setattr__(self, "point_forces", _items("point_forces", self.point_forces, PointForce))
+        object.__setattr__(self, "obstacles", _items("obstacles", self.obstacles, Obstacle))
+        _items("tip_constraint", () if self.tip_constraint is None else (self.tip_constraint,), TipConstraint)
         object.__setattr__(self, "batch_size", _batch(_per_rod_fields(self)))
         with np.errstate(all="ignore"):
             object.__setattr__(self, "_section", self._compute_section())
@@ -271,8 +217,7 @@ class Robot:
         return _stack_cols(cols)
 
     def section(self) -> dict[str, np.ndarray]:
-        """Cross-section and stiffness per rod (leading dim 1 or B): A, I, Kse, Kbt (computed
-        once; the arrays are read-only)."""
+        """Cross-section and stiffness per rod (leading 1 or B): A, I, Kse, Kbt (computed once, read-only)."""
         return self._section
 
     def _compute_section(self) -> dict[str, np.ndarray]:
@@ -288,8 +233,8 @@ class Robot:
         return sec
 
     def routing_parameters(self) -> tuple[np.ndarray, ...]:
-        """Per tendon the routing r(s) = [x0 + dx s + a cos(w s + phase), y0 + dy s + a sin(w s + phase), 0]:
-        x0, y0, a [m], w [rad/m], phase [rad], dx, dy [-], each (1 or B, K)."""
+        """Per tendon x0, y0, a [m], w [rad/m], phase [rad], dx, dy [-], each (1|B, K), of the routing
+        r(s) = [x0 + dx s + a cos(w s + phase), y0 + dy s + a sin(w s + phase), 0]."""
         if not self.tendons:
             return tuple(np.zeros((1, 0)) for _ in range(7))
         lengths = self.tendon_lengths()
@@ -318,21 +263,8 @@ class Robot:
         """The tendons under displacement control, in order (each adds one shooting unknown)."""
         return tuple(k for k, t in enumerate(self.tendons) if t.control == "displacement")
 
-    def route_table(self) -> np.ndarray:
-        """(1, K, S, 9) the spline segments of "points" tendons (zeros elsewhere and beyond a
-        tendon's own segments: they add nothing), S the most segments of any tendon."""
-        segs = [t.spline if t.routing == "points" else np.zeros((0, 9)) for t in self.tendons]
-        S = max([len(g) for g in segs] + [1])
-        out = np.zeros((1, len(segs), S, 9))
-        for k, g in enumerate(segs):
-            out[0, k, :len(g)] = g
-            if len(g):
-                out[0, k, len(g):, 0] = np.inf  # never selected
-        return out
-
     def tendon_routing(self, s) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Body-frame routing of every tendon at arc length s [m] (a number, or (B,) or (B, K)):
-        r(s) and its first two arc-length derivatives, each (1 or B, K, 3)."""
+        """Body-frame routing r(s), r', r'' of every tendon at s [m] (a number, (B,) or (B, K)), each (1|B, K, 3)."""
         if self.n_tendons == 0:
             z = np.zeros((1, 0, 3))
             return z, z, z
@@ -369,6 +301,18 @@ class Robot:
         return s, np.stack([np.broadcast_to(x, (b, 3)) for x in f], axis=1)
 
 
+def route_table(robot: Robot) -> np.ndarray:
+    """(1, K, S, 9) the spline segments of "points" tendons, S the most of any (zeros elsewhere: they add nothing)."""
+    segs = [t.spline if t.routing == "points" else np.zeros((0, 9)) for t in robot.tendons]
+    S = max([len(g) for g in segs] + [1])
+    out = np.zeros((1, len(segs), S, 9))
+    for k, g in enumerate(segs):
+        out[0, k, :len(g)] = g
+        if len(g):
+            out[0, k, len(g):, 0] = np.inf  # never selected
+    return out
+
+
 SCALARS = ("length", "youngs_modulus", "poisson_ratio", "radius", "density")  # Robot's fields: () or (B,)
 VECTORS = ("precurvature", "gravity", "tip_force", "tip_moment", "damping_shear", "damping_bending", "drag")
 
@@ -386,12 +330,12 @@ def _check_ranges(robot: Robot) -> None:
     """The robot's own numbers in range: positive sizes and modulus, density and damping >= 0,
     Poisson's ratio in (-1, 0.5)."""
     for name in ("length", "youngs_modulus", "radius"):
-        _check(name, getattr(robot, name), getattr(robot, name) > 0, "positive")
-    _check("density", robot.density, robot.density >= 0, ">= 0")
+        check_values(name, getattr(robot, name), getattr(robot, name) > 0, "positive")
+    check_values("density", robot.density, robot.density >= 0, ">= 0")
     for name in ("damping_shear", "damping_bending", "drag"):
-        _check(name, getattr(robot, name), getattr(robot, name) >= 0, ">= 0")
+        check_values(name, getattr(robot, name), getattr(robot, name) >= 0, ">= 0")
     nu = robot.poisson_ratio
-    _check("poisson_ratio", nu, (nu > -1) & (nu < 0.5), "in (-1, 0.5)")
+    check_values("poisson_ratio", nu, (nu > -1) & (nu < 0.5), "in (-1, 0.5)")
 
 
 def _per_rod_fields(robot: Robot) -> dict[str, np.ndarray]:
@@ -405,6 +349,10 @@ def _per_rod_fields(robot: Robot) -> dict[str, np.ndarray]:
     for j, pf in enumerate(robot.point_forces):
         out[f"point_forces[{j}].s"] = pf.s
         out[f"point_forces[{j}].force"] = pf.force
+    for j, ob in enumerate(robot.obstacles):
+        out |= ob.batch_fields(f"obstacles[{j}]")
+    if robot.tip_constraint is not None:
+        out |= robot.tip_constraint.batch_fields("tip_constraint")
     return out
 
 
@@ -420,7 +368,7 @@ def _check_stiffness(robot: Robot) -> None:
                        / robot.length}
     for name, val in derived.items():
         ok = np.isfinite(val) & (val > 0) & (val < 1e300)
-        _check(name, np.asarray(val), ok, "finite and positive (the inputs are out of range)")
+        check_values(name, np.asarray(val), ok, "finite and positive (the inputs are out of range)")
 
 
 def _check_within_length(robot: Robot) -> None:
@@ -429,10 +377,10 @@ def _check_within_length(robot: Robot) -> None:
     for i, t in enumerate(robot.tendons):
         if t.length is not None:
             ok = np.broadcast_to(t.length <= L * (1 + 1e-12), np.broadcast_shapes(t.length.shape, L.shape))
-            _check(f"tendons[{i}].length", np.broadcast_to(t.length, ok.shape), ok, "<= the rod length")
+            check_values(f"tendons[{i}].length", np.broadcast_to(t.length, ok.shape), ok, "<= the rod length")
     for j, pf in enumerate(robot.point_forces):
         ok = np.broadcast_to(pf.s <= L * (1 + 1e-12), np.broadcast_shapes(pf.s.shape, L.shape))
-        _check(f"point_forces[{j}].s", np.broadcast_to(pf.s, ok.shape), ok, "<= the rod length")
+        check_values(f"point_forces[{j}].s", np.broadcast_to(pf.s, ok.shape), ok, "<= the rod length")
     for i, t in enumerate(robot.tendons):
         if t.routing == "points" and t.length is None and np.any(np.abs(t.points[-1, 0] - L) > 1e-12 * L):
             raise InputError(f"tendons[{i}].points end at s = {float(t.points[-1, 0])!r}, the tendon runs to "
@@ -445,8 +393,8 @@ def _set_disk_fields(robot: Robot) -> None:
     (a section ends where a tendon ends, the last at the tip); the tendon model "disks" routes
     the tendons straight between them. disk_mass [kg]: each disk's weight in that model."""
     if robot.disk_radius is not None:
-        object.__setattr__(robot, "disk_radius", _as_field("disk_radius", robot.disk_radius, ()))
-        _check("disk_radius", robot.disk_radius, robot.disk_radius > 0, "positive")
+        object.__setattr__(robot, "disk_radius", as_field("disk_radius", robot.disk_radius, ()))
+        check_values("disk_radius", robot.disk_radius, robot.disk_radius > 0, "positive")
         _check_inside_disks(robot)
     d = robot.disks
     if isinstance(d, numbers.Integral) and not isinstance(d, bool):
@@ -466,10 +414,10 @@ def _set_disk_fields(robot: Robot) -> None:
         raise InputError(f"disks: arc lengths must increase, got {arr.tolist()}")
     arr.flags.writeable = False
     object.__setattr__(robot, "disks", arr)
-    mass = _as_field("disk_mass", robot.disk_mass, ())
+    mass = as_field("disk_mass", robot.disk_mass, ())
     if mass.shape[0] != 1:
         raise InputError(f"disk_mass: expected one number (shared by the batch), got shape {mass.shape[1:]}")
-    _check("disk_mass", mass, mass >= 0, ">= 0 [kg]")
+    check_values("disk_mass", mass, mass >= 0, ">= 0 [kg]")
     object.__setattr__(robot, "disk_mass", float(mass[0]))
 
 

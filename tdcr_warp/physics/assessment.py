@@ -41,6 +41,8 @@ class Assessor:
             return "friction (not conservative)"
         if self.opts.model == "point" and self.robot.n_tendons:
             return "point-model tendon loads (follower forces)"
+        if self.tables.features.tip:
+            return "a constrained tip (the test covers a free tip)"
         if self.opts.model == "disks":
             return "disk model (a chord's pull depends on both holes it joins: not a load the test covers)"
         return ""

@@ -187,6 +187,9 @@ class Simulator:
         if self.opts.model in ("constant_curvature", "disks"):
             raise InputError(f"dynamics needs solver model 'coupled' or 'point', got {self.opts.model!r} (the disk "
                              "model is static for now)")
+        if robot.obstacles or robot.tip_constraint is not None:
+            raise InputError("dynamics with obstacles or a constrained tip is not built yet: statics only "
+                             "(solve_static)")
         static, self.tables, x0 = _static_start(robot, tau, displacements, initial, self.opts, self.dev)
         self.grid = np.broadcast_to(self.tables.grid, (self.B, self.tables.grid.shape[1]))
         self.path = static.tendon_path_length

@@ -20,64 +20,95 @@ import numpy as np
 import warp as wp
 
 from tdcr_warp.core.build import Tables
-from tdcr_warp.core.homotopy import continuation_steps, load_continuation
+from tdcr_warp.core.homotopy import continuation_steps, holding_path, load_continuation
 from tdcr_warp.core.parallel import parallel, split
 from tdcr_warp.core.solver import Shooting, first_jacobian
 from tdcr_warp.kernels import layout
 from tdcr_warp.model.options import StaticOptions, describe_status
 from tdcr_warp.model.robot import InputError, Robot, check_command, check_slip, real_array, require_memory
 from tdcr_warp.physics.assessment import Assessor
+from tdcr_warp.physics.contact import chunk_contacts
 from tdcr_warp.physics.sensitivity import parameter_tables
 from tdcr_warp.physics.slack import available_lengths, linear_tensions, settle_slack, tendon_compliance
 
 __all__ = ["StaticOptions", "StaticProblem", "StaticSolution", "reference_lengths", "solve_static"]
 
 
+class RodRows:
+    """The rows of a dataclass of per-rod arrays (its fields with a row per rod): a sub-batch, a
+    join of parts, a replacement of some rods."""
+
+    def _batched(self):
+        """The fields with a row per rod."""
+        B = len(self.converged)
+        return [f.name for f in fields(self) if isinstance(getattr(self, f.name), np.ndarray)
+                and getattr(self, f.name).ndim and len(getattr(self, f.name)) == B]
+
+    def rows(self, index) -> "RodRows":
+        """The rods ``index`` (indices or a mask) of this solution, e.g. a warm start for a sub-batch."""
+        return replace(self, **{k: getattr(self, k)[index] for k in self._batched()})
+
+    @staticmethod
+    def joined(parts: list) -> "RodRows":
+        """The rods of ``parts`` (solutions of one robot and solver options) in order, as one solution."""
+        return replace(parts[0], **{k: np.concatenate([getattr(p, k) for p in parts]) for k in parts[0]._batched()})
+
+    def replaced(self, index: np.ndarray, other: "RodRows") -> "RodRows":
+        """This solution with its rods ``index`` (indices) replaced by the rods of ``other``, in order."""
+        out = {}
+        for k in self._batched():
+            v = getattr(self, k).copy()
+            v[index] = getattr(other, k)
+            out[k] = v
+        return replace(self, **out)
+
+
 @dataclass
-class StaticSolution:
+class StaticSolution(RodRows):
     """Solved shapes and diagnostics of B rods (float64 NumPy arrays on the host).
 
-    s: (B, N+1) arc length of the nodes [m]; positions: (B, N+1, 3) [m]; rotations:
-    (B, N+1, 3, 3) body-to-world; n, m: (B, N+1, 3) internal force [N] and moment [N m]
-    (world frame) just proximal of each node (so n[:, -1] = n(L-), before the tip loads);
-    tip_position (B, 3), tip_rotation (B, 3, 3); base_wrench (B, 6) = [n(0), m(0)].
-    converged (B,) bool; status (B,) bit flags (kernels/layout.py); iterations (B,);
-    integrations (B,): base-to-tip integrations spent (the 7 of a first Jacobian in a Broyden RK4 solve with
-    N >= 16 run over double steps, at about half the cost; the probes of sensitivities included); residual (B,): L |r| [m];
-    orthogonality_error (B,): max |R^T R - I| over the nodes; jacobian (B, nu, nu): the last
-    scaled shooting Jacobian (reused by a warm start); unknowns (B, nu): the scaled shooting
-    unknowns (nu = 6 + one per displacement-controlled tendon). tip_error_estimate (B,) [m]:
-    with ``error_estimate`` only.
+    s: (B, N+1) arc length of the nodes [m]; positions: (B, N+1, 3) [m]; rotations: (B, N+1, 3, 3) body-to-world;
+    n, m: (B, N+1, 3) internal force [N] and moment [N m] (world frame) just proximal of each node (so n[:, -1] =
+    n(L-), before the tip loads); tip_position (B, 3), tip_rotation (B, 3, 3); base_wrench (B, 6) = [n(0), m(0)].
+    converged (B,) bool; status (B,) bit flags (kernels/layout.py); iterations (B,); integrations (B,):
+    base-to-tip integrations spent (the 7 of a first Jacobian in a Broyden RK4 solve with N >= 16 run over double
+    steps, at about half the cost; the probes of sensitivities included); residual (B,): L |r| [m];
+    orthogonality_error (B,): max |R^T R - I| over the nodes; jacobian (B, nu, nu): the last scaled shooting
+    Jacobian (reused by a warm start); unknowns (B, nu): the scaled shooting unknowns (nu = 6 + one per
+    displacement-controlled tendon). tip_error_estimate (B,) [m]: with ``error_estimate`` only.
 
-    Sensitivities (``sensitivities``; NaN for rods that did not converge; the tip pose is
-    [p(L) [m], theta [rad]], theta the world-frame rotation vector of a small tip rotation):
-    tip_jacobian (B, 6, K) d pose / d command, per tendon its tension [N] under tension control
-    or its motor displacement [m] under displacement control; tip_compliance (B, 6, 6) d pose /
-    d [F_tip [N], M_tip [N m]] (world frame); tension_jacobian (B, K, K) d tendon_tension_base[k] /
-    d command[l] (the identity for tension control; zero rows for slack tendons); slack_jacobian
-    (B, K, K) d (slack length [m] of slack tendon k) / d command[l] (zero rows for taut tendons);
-    parameter_jacobian (B, 6, P) d pose / d parameter (units of each parameter,
-    ``parameter_names``). Stability (on by default; None with ``stability="off"``): stability_index
-    (B,) the number of unstable directions (0: stable; -1: not assessed: not converged, for
-    the whole batch ``stability_note``: friction, point-model tendons, or a rod whose phases turn
-    too fast even on 16 steps an interval; ``stability_reasons`` says which); lagrangian_error (B,)
-    the check of the test (small: trustworthy); stability_margin (B,) [rad] how far the rod is
-    from a change of the count (small: near a buckling load; see ``stability_reasons``); with
-    "stable" also branch (B,) int8 (0: as solved, 1: the solve landed on an
-    unstable equilibrium and a restart found this stable one, -1: unstable, no stable one
-    found) and multiple_stable (B,) bool (restarts found distinct stable equilibria).
+    Sensitivities (``sensitivities``; NaN for rods that did not converge; the tip pose is [p(L) [m], theta [rad]],
+    theta the world-frame rotation vector of a small tip rotation): tip_jacobian (B, 6, K) d pose / d command, per
+    tendon its tension [N] under tension control or its motor displacement [m] under displacement control;
+    tip_compliance (B, 6, 6) d pose / d [F_tip [N], M_tip [N m]] (world frame); tension_jacobian (B, K, K) d
+    tendon_tension_base[k] / d command[l] (the identity for tension control; zero rows for slack tendons);
+    slack_jacobian (B, K, K) d (slack length [m] of slack tendon k) / d command[l] (zero rows for taut tendons);
+    parameter_jacobian (B, 6, P) d pose / d parameter (units of each parameter, ``parameter_names``). Stability
+    (on by default; None with ``stability="off"``): stability_index (B,) the number of unstable directions (0:
+    stable; -1: not assessed: not converged, for the whole batch ``stability_note``: friction, point-model
+    tendons, or a rod whose phases turn too fast even on 16 steps an interval; ``stability_reasons`` says which);
+    lagrangian_error (B,) the check of the test (small: trustworthy); stability_margin (B,) [rad] how far the rod
+    is from a change of the count (small: near a buckling load; see ``stability_reasons``); with "stable" also
+    branch (B,) int8 (0: as solved, 1: the solve landed on an unstable equilibrium and a restart found this stable
+    one, -1: unstable, no stable one found) and multiple_stable (B,) bool (restarts found distinct stable
+    equilibria).
 
-    Per tendon (B, K): tendon_tension_base (at the motor side, s = 0) and tendon_tension_end
-    (just before its termination) [N]. With tendon states (displacement control or friction;
-    None otherwise): tendon_path_length, the length of its deformed path [m];
-    tendon_free_length, the unstretched tendon that path holds [m]; tendon_turning (with
-    friction), the total turning of its path [rad], kinks included where they are modelled;
-    tendon_tension (B, N+1, K) just distal of every node [N]; slack
-    (B, K): a displacement-controlled tendon with zero tension and length to spare. With
-    friction: slip (B, K), the slip direction each tendon was solved with (+1 pulled, -1
-    released, 0: stick-slip from ``history``); slip_state (B, N+1, K) int8 just distal of each
-    node: +1 sliding toward the motor, -1 away from it, 0 stuck; tension_slots: the profile a
-    following quasi-static solve starts from (``history``).
+    With obstacles (None otherwise; tdcr_warp/physics/contact.py): contact_force (B, N+1, 3) the obstacles' point
+    force on each node [N] (world frame; n jumps by it there), contact_gap (B, N+1, O) each node's gap to each
+    obstacle [m] (negative: penetration), contact_stiffness (B, O) the penalty stiffness each obstacle was solved
+    with [N/m per m]; ``penetration`` (B, O) the deepest penetration of each [m]; a rigid one beyond
+    ``contact_tolerance`` flags PENETRATION. With a constrained tip: tip_reaction (B, 3) the force it takes [N]
+    (world).
+
+    Per tendon (B, K): tendon_tension_base (at the motor side, s = 0) and tendon_tension_end (just before its
+    termination) [N]. With tendon states (displacement control or friction; None otherwise): tendon_path_length,
+    the length of its deformed path [m]; tendon_free_length, the unstretched tendon that path holds [m];
+    tendon_turning (with friction), the total turning of its path [rad], kinks included where they are modelled;
+    tendon_tension (B, N+1, K) just distal of every node [N]; slack (B, K): a displacement-controlled tendon with
+    zero tension and length to spare. With friction: slip (B, K), the slip direction each tendon was solved with
+    (+1 pulled, -1 released, 0: stick-slip from ``history``); slip_state (B, N+1, K) int8 just distal of each
+    node: +1 sliding toward the motor, -1 away from it, 0 stuck; tension_slots: the profile a following
+    quasi-static solve starts from (``history``).
     """
 
     s: np.ndarray
@@ -118,6 +149,10 @@ class StaticSolution:
     stability_note: str = ""
     branch: np.ndarray | None = None
     multiple_stable: np.ndarray | None = None
+    tip_reaction: np.ndarray | None = None
+    contact_force: np.ndarray | None = None
+    contact_gap: np.ndarray | None = None
+    contact_stiffness: np.ndarray | None = None
 
     @property
     def stable(self) -> np.ndarray | None:
@@ -127,9 +162,10 @@ class StaticSolution:
 
     @property
     def success(self) -> np.ndarray:
-        """(B,) bool: converged, and not found unstable (an unstable equilibrium is never a success;
+        """(B,) bool: converged, not found unstable and not through an obstacle (an unstable
+        equilibrium or an unresolved contact is never a success;
         a rod the test could not assess counts as converged, see ``stability_reasons``)."""
-        return self.converged & ((self.status & layout.UNSTABLE) == 0)
+        return self.converged & ((self.status & (layout.UNSTABLE | layout.PENETRATION)) == 0)
 
     def stability_reasons(self) -> list[str] | None:
         """One string per rod: "stable", "unstable: k directions", or why it was not assessed
@@ -144,36 +180,17 @@ class StaticSolution:
                                          self.stability_margin.tolist())]
 
     @property
+    def penetration(self) -> np.ndarray | None:
+        """(B, O) the deepest penetration of each obstacle [m] (0 where none; None without obstacles)."""
+        return None if self.contact_gap is None else np.maximum(0.0, -self.contact_gap.min(axis=1))
+
+    @property
     def tip_position(self) -> np.ndarray:
         return self.positions[:, -1]
 
     @property
     def tip_rotation(self) -> np.ndarray:
         return self.rotations[:, -1]
-
-    def _batched(self):
-        """The fields with a row per rod."""
-        B = len(self.converged)
-        return [f.name for f in fields(self) if isinstance(getattr(self, f.name), np.ndarray)
-                and getattr(self, f.name).ndim and len(getattr(self, f.name)) == B]
-
-    def rows(self, index) -> "StaticSolution":
-        """The rods ``index`` (indices or a mask) of this solution, e.g. a warm start for a sub-batch."""
-        return replace(self, **{k: getattr(self, k)[index] for k in self._batched()})
-
-    @staticmethod
-    def joined(parts: list["StaticSolution"]) -> "StaticSolution":
-        """The rods of ``parts`` (solutions of one robot and solver options) in order, as one solution."""
-        return replace(parts[0], **{k: np.concatenate([getattr(p, k) for p in parts]) for k in parts[0]._batched()})
-
-    def replaced(self, index: np.ndarray, other: "StaticSolution") -> "StaticSolution":
-        """This solution with its rods ``index`` (indices) replaced by the rods of ``other``, in order."""
-        out = {}
-        for k in self._batched():
-            v = getattr(self, k).copy()
-            v[index] = getattr(other, k)
-            out[k] = v
-        return replace(self, **out)
 
     def failure_reasons(self) -> list[str]:
         """One string per rod: "converged" or why it failed."""
@@ -257,6 +274,7 @@ class StaticProblem:
         self.disp = np.flatnonzero(self.tables.tmode[0] >= 0)  # the displaced tendons
         self.j_of = 6 + self.tables.tmode[0, self.disp]  # their shooting unknowns
         self.assessor = Assessor(robot, self.tables, opts)
+        self.contacts = chunk_contacts(robot, self.tables, self.solvers, self.chunks)
         self.lock = threading.Lock()
         self._reference = None
         self._unloaded: tuple | None = None  # the rods' unloaded Jacobians and their cost (unloaded_jacobians)
@@ -293,16 +311,18 @@ class StaticProblem:
         """Scaled straight-rod start (B, nu): the displaced tendons at the tensions of the linear
         straight-rod model (tdcr_warp.physics.slack.linear_tensions), the base wrench of all tensions."""
         t = self.tables
+        react = np.zeros((len(tau), t.features.tip))  # a constrained tip's reaction starts at zero
         if avail is None:
-            return t.straight.guess(tau) / t.scales
+            return np.concatenate([t.straight.guess(tau) / t.scales[:, :6], react], axis=1)
         guess, z = linear_tensions(self.robot, t, self.tendon_compliance, tau, avail)
-        return np.concatenate([t.straight.guess(guess) / t.scales[:, :6], z], axis=1)
+        return np.concatenate([t.straight.guess(guess) / t.scales[:, :6], z, react], axis=1)
 
     def solve(self, tau: np.ndarray, initial: StaticSolution | None, displacements: np.ndarray | None = None,
               slip: np.ndarray | None = None, history: StaticSolution | None = None, *,
-              sensitivities: bool = False, stability: str = "off", parameters: tuple = ()) -> StaticSolution:
-        """One solve of the batch; with ``sensitivities`` or ``stability`` (see StaticOptions)
-        also the rods' sensitivities (``parameters``: robot field names, tdcr_warp.physics.sensitivity)."""
+              sensitivities: bool = False, stability: str = "off", parameters: tuple = (),
+              free: StaticSolution | None = None) -> StaticSolution:
+        """One solve of the batch; with ``sensitivities`` or ``stability`` (see StaticOptions) also the rods'
+        sensitivities (``parameters``: robot field names); ``free``: a held tip's rods solved free, its start."""
         opts, tables = self.opts, self.tables
         ptables = parameter_tables(self.robot, tables, parameters, opts.precision, opts.nodes, opts.specialize,
                                    opts.kink_loads, opts.tendon_states) if parameters else []
@@ -310,11 +330,15 @@ class StaticProblem:
         slip, profile = _slip_memory(tables, self.solvers[0].n_slots, tau, avail, slip, history)
         x0, J0 = self._first_guess(tau, avail, initial, history)
         warm = (initial or history) is not None
+        if free is not None and not warm:
+            x0 = np.concatenate([free.unknowns, np.zeros((self.B, tables.features.tip))], axis=1)
         J0, spent = (J0, None) if warm else unloaded_jacobians(self, avail)
         newton = {"tol": opts.tolerance, "max_iter": opts.max_iter, "max_step": opts.max_step,
                   "broyden": opts.jacobian == "broyden"}
+        stiffness = None if initial is None else initial.contact_stiffness
         job = _Job(tau=tau, avail=avail, slip=slip, profile=profile, x0=x0, J0=J0, spent=spent, warm=warm,
-                   newton=newton, ptables=ptables, linear=sensitivities or bool(parameters), stability=stability)
+                   newton=newton, ptables=ptables, linear=sensitivities or bool(parameters), stability=stability,
+                   stiffness=stiffness, free=None if free is None or warm else x0)
         parts = parallel(lambda i: self._solve_chunk(i, job), list(range(len(self.chunks))))
         out = parts[0] if len(parts) == 1 else {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
         return _solution(tables, opts, out, job, tuple(parameters), self.assessor.unassessed)
@@ -346,6 +370,9 @@ class StaticProblem:
         taut = np.ones((hi - lo, job.tau.shape[1]), dtype=bool)
         taut[:, self.disp] = x0[:, self.j_of] >= 0
         sh.set_taut(taut)
+        contact = self.contacts[i] if self.contacts else None
+        if contact:
+            contact.reset(None if job.stiffness is None else job.stiffness[lo:hi])
         if job.J0 is not None:
             sh.host(sh.newton.J).put(job.J0[lo:hi])
         sh.solve(x0, fresh_jacobian=job.J0 is None, **newton)
@@ -356,34 +383,27 @@ class StaticProblem:
                 free = np.broadcast_to(tables.straight.path, job.tau.shape)[lo:hi]
                 load_continuation(sh, tables.rows("rod", lo, hi), tables.rows("pforce", lo, hi), job.tau[lo:hi], x0,
                                   redo, steps, newton, None if avail is None else (free, avail))
+        if job.free is not None and not sh.converged().all():
+            _hold(sh, tables, lo, hi, x0, newton)
+        if contact:
+            contact.soften(x0, newton)
+            contact.stiffen(self.opts.contact_tolerance, self.opts.contact_steps, newton)
         if len(self.disp):
             settle_slack(sh, taut, self.disp, self.j_of, newton)
         if job.profile is not None:
-            self._stick_slip(sh, job.slip[lo:hi], job.profile[lo:hi], x0, taut, newton)
+            _stick_slip(self, sh, job.slip[lo:hi], job.profile[lo:hi], x0, taut, newton)
         if job.spent is not None:  # the integrations of the unloaded Jacobians count, where they were made
             it, sn = sh.counts()
             sh.set_counts(it, sn + job.spent[lo:hi])
         res = sh.results()
+        if contact:
+            res |= contact.results(self.opts.contact_tolerance, res["status"])
         if job.linear or job.stability != "off":
             res |= self.assessor.assess(sh, lo, hi, job.tau[lo:hi], taut, res, job.ptables, job.linear, job.stability)
             if job.stability == "stable":
                 res = self.assessor.stable_branch(sh, lo, hi, job.tau[lo:hi], taut, res, job.ptables, job.linear,
                                                   newton, self.disp, self.j_of)
         return res
-
-    def _stick_slip(self, sh: Shooting, slip: np.ndarray, profile: np.ndarray, x0: np.ndarray, taut: np.ndarray,
-                    newton: dict) -> None:
-        """The stick-slip corrector of a quasi-static step (friction with a history): solved again
-        with the previous tension ``profile`` remembered, from the slipping predictor where it
-        converged (else from x0); iterations and integrations add up."""
-        ok = sh.converged()
-        iters, shots = sh.counts()
-        sh.set_memory(slip, profile)
-        sh.solve(np.where(ok[:, None], sh.newton.x.numpy(), x0), **newton)
-        if len(self.disp):
-            settle_slack(sh, taut, self.disp, self.j_of, newton)
-        it, sn = sh.counts()
-        sh.set_counts(it + iters, sn + shots)
 
 
 @dataclass
@@ -393,7 +413,8 @@ class _Job:
     None (friction), the start x0 (B, nu) and Jacobian J0 or None, the integrations spent (B,) on
     J0 in this solve or None, whether the start is warm, the Newton settings, the parameters'
     tables and what to add (``linear``: sensitivities; the stability verdict unless ``stability``
-    is "off")."""
+    is "off"), the obstacles' stiffness to start from (a warm start's) or None, and with a
+    constrained tip (not warm) the free rods' unknowns (B, nu; zero reaction), or None."""
 
     tau: np.ndarray
     avail: np.ndarray | None
@@ -407,6 +428,31 @@ class _Job:
     ptables: list
     linear: bool
     stability: str
+    stiffness: np.ndarray | None = None
+    free: np.ndarray | None = None
+
+
+def _stick_slip(problem: StaticProblem, sh: Shooting, slip: np.ndarray, profile: np.ndarray, x0: np.ndarray,
+                taut: np.ndarray, newton: dict) -> None:
+    """The stick-slip corrector of a quasi-static step (friction with a history): solved again
+    with the previous tension ``profile`` remembered, from the slipping predictor where it
+    converged (else from x0); iterations and integrations add up."""
+    ok = sh.converged()
+    iters, shots = sh.counts()
+    sh.set_memory(slip, profile)
+    sh.solve(np.where(ok[:, None], sh.newton.x.numpy(), x0), **newton)
+    if len(problem.disp):
+        settle_slack(sh, taut, problem.disp, problem.j_of, newton)
+    it, sn = sh.counts()
+    sh.set_counts(it + iters, sn + shots)
+
+
+def _hold(sh: Shooting, tables: Tables, lo: int, hi: int, x0: np.ndarray, newton: dict) -> None:
+    """The rods of a chunk with a constrained tip that failed from the free rod: held by a spring
+    first as soft as a tenth of the rod's tip stiffness 3 EI / L^3 (``holding_path``)."""
+    rod = tables.rows("rod", lo, hi)
+    soft = 10.0 * rod[:, layout.LENGTH] / (3.0 * rod[:, layout.FORCE_SCALE])  # 10 L^3 / (3 EI)
+    holding_path(sh, tables.rows("tipc", lo, hi), np.broadcast_to(soft, (hi - lo,)), x0, ~sh.converged(), newton)
 
 
 def _slip_memory(tables: Tables, n_slots: int, tau: np.ndarray, avail: np.ndarray | None, slip: np.ndarray | None,
@@ -478,6 +524,10 @@ def _solution(tables: Tables, opts: StaticOptions, out: dict, job: _Job, paramet
     B = len(out["converged"])
     x = out.pop("x")
     out["base_wrench"] = x[:, :6] * tables.scale_rows(B)[:, :6]
+    if tables.features.tip:
+        first, basis = 6 + tables.features.displaced, tables.tipc[:, layout.TC_BASIS:layout.TC_BASIS + 9].reshape(-1, 3, 3)
+        lam = x[:, first:] * tables.scale_rows(B)[:, first:]
+        out["tip_reaction"] = np.einsum("bi,bij->bj", lam, np.broadcast_to(basis[:, :lam.shape[1]], (B, lam.shape[1], 3)))
     s = np.broadcast_to(tables.grid, (B, tables.grid.shape[1])).astype(np.float64)
     tendon = tendon_results(tables, out, x, job.tau, job.slip, job.profile is not None)
     if job.linear:
@@ -609,15 +659,18 @@ def solve_static(robot: Robot, tensions=None, *, displacements=None, slip=None, 
     the motor's given length is held, not the displacement).
     """
     opts = _options(options, overrides)
+    if robot.tip_constraint is not None and (opts.sensitivities or parameters or opts.stability == "stable"):
+        raise InputError("a constrained tip has no sensitivities or stable-branch search yet (the tip is held): "
+                         "drop tip_constraint, or sensitivities / parameters / stability = 'stable'")
     slip = None if slip is None else real_array(slip, "slip", copy=False)
     tau, q = check_command(robot, tensions, displacements,
                            None if slip is None or np.ndim(slip) != 2 else max(robot.batch_size, np.shape(slip)[0]))
     B = tau.shape[0]
     sg = None if slip is None else check_slip(robot, slip, B)
     if opts.model == "constant_curvature":
-        if robot.displaced or robot.has_friction:
-            raise InputError("solver model 'constant_curvature' has no displacement control or friction: "
-                             "use model 'coupled' or 'point'")
+        if robot.displaced or robot.has_friction or robot.obstacles or robot.tip_constraint is not None:
+            raise InputError("solver model 'constant_curvature' has no displacement control, friction, obstacles "
+                             "or constrained tip: use model 'coupled' or 'point'")
         if opts.sensitivities or opts.stability == "stable" or parameters:
             raise InputError("solver model 'constant_curvature' has no sensitivities or stable-branch search: use "
                              "model 'coupled' or 'point'")
@@ -626,12 +679,16 @@ def solve_static(robot: Robot, tensions=None, *, displacements=None, slip=None, 
         initial = solve_static(robot, tau, displacements=q, slip=sg, device=device,
                                options=replace(opts, model="coupled", sensitivities=False, stability="off",
                                                error_estimate=False))
+    free = None
+    if robot.tip_constraint is not None and initial is None and history is None:  # from the free rods
+        free = solve_static(replace(robot, tip_constraint=None), tau, displacements=q, slip=sg, device=device,
+                            options=replace(opts, sensitivities=False, stability="off", error_estimate=False))
     dev = wp.get_device(device)
     require_memory(B * (opts.nodes + 1) * 400.0, f"nodes = {opts.nodes} for {B} rods: the shapes")
     problem, locked = _problem(robot, B, opts, dev)
     try:
         sol = problem.solve(tau, initial, q, sg, history, sensitivities=opts.sensitivities,
-                            stability=opts.stability, parameters=tuple(parameters or ()))
+                            stability=opts.stability, parameters=tuple(parameters or ()), free=free)
     finally:
         if locked:
             problem.lock.release()

@@ -1,0 +1,195 @@
+"""Contact of the backbone with rigid obstacles: a penalty force at every node.
+
+The distance from a node's centre-line point p to each obstacle's surface, on the side the rod
+may be (outside a plane, sphere or capsule; inside a tube's lumen), less the rod's radius, is
+the gap g; the penetration is delta = -g. The obstacle pushes the node along the surface normal
+with the point force
+
+    F = k w phi(delta) n,   phi(delta) = 0                           delta <= -eps/2
+                                         (delta + eps/2)^2 / (2 eps)  |delta| < eps/2
+                                         delta                        delta >= eps/2
+
+k [N/m per m] the penalty stiffness, w the node's share of the rod (half of each interval next
+to it), n the unit normal. phi is the linear penalty with its corner rounded over a band of
+width eps = E I / (k L^3) centred on the surface, so the force and its derivative are
+continuous (Newton needs that) and, beyond a force per length of E I / (2 L^3), the law is
+exactly the linear penalty; as k grows, eps and the penetration at a given force shrink as
+1 / k. (Within the band a node is pushed while up to eps / 2 off the surface: that too is an
+error of the penalty, which the stiffening of tdcr_warp/physics/contact.py bounds.) The force acts through the centre line (a frictionless surface), so it adds no moment,
+and being a point force at a node it keeps global force and moment balance exact.
+
+  surface        the distance from p to an obstacle's surface and the normal there
+  contact_force  the sum of the obstacles' forces at a node and the smallest gap
+  contact kernel the force and gap at every node of solved shapes (outputs)
+"""
+
+import functools
+from types import SimpleNamespace
+
+import warp as wp
+
+from .layout import (
+    BENT_TUBE,
+    CAPSULE,
+    FORCE_SCALE,
+    LENGTH,
+    OB_A,
+    OB_ANGLE,
+    OB_B,
+    OB_BEND,
+    OB_C,
+    OB_KIND,
+    OB_RADIUS,
+    OB_REACH,
+    OB_STIFF,
+    PLANE,
+    SPHERE,
+    TUBE,
+)
+from .structs import make_rows, make_structs
+
+__all__ = ["FAR", "make_contact", "make_contact_kernel"]
+
+FAR = 1.0e30  # the distance reported where an obstacle cannot be touched (beyond a tube's ends)
+
+
+@functools.cache
+def make_surface(dtype, dynamic: bool):
+    """``surface``: the distance to an obstacle and its normal, for one precision."""
+    vec3 = wp.types.vector(3, dtype)
+    zero = dtype(0.0)
+    far = dtype(FAR)
+    two_pi = dtype(6.283185307179586)
+    Model = make_structs(dtype, dynamic).Model
+
+    @wp.func
+    def column(md: Model, i: int, j: int, c: int):
+        return vec3(md.obst[i, j, c], md.obst[i, j, c + 1], md.obst[i, j, c + 2])
+
+    @wp.func
+    def away(r: vec3, dist: dtype, fallback: vec3):
+        """r / dist, or ``fallback`` where r vanishes (p on an axis or a centre)."""
+        if dist > zero:
+            return r / dist
+        return fallback
+
+    @wp.func
+    def surface(md: Model, i: int, j: int, p: vec3):
+        """The distance d from p to the surface of obstacle j (row i of the table), positive on
+        the rod's side, and the unit normal n pointing to that side (d = FAR: out of reach)."""
+        kind = int(md.obst[i, j, OB_KIND])
+        a = column(md, i, j, OB_A)
+        bv = column(md, i, j, OB_B)
+        rad = md.obst[i, j, OB_RADIUS]
+        d = far
+        nrm = vec3()
+        if kind == PLANE:
+            d = wp.dot(p - a, bv)
+            nrm = bv
+        elif kind == SPHERE:
+            r = p - a
+            lr = wp.length(r)
+            d = lr - rad
+            nrm = away(r, lr, vec3(zero, zero, dtype(1.0)))
+        elif kind == CAPSULE or kind == TUBE:
+            ab = bv - a
+            t = wp.dot(p - a, ab) / wp.dot(ab, ab)
+            if kind == CAPSULE:
+                t = wp.clamp(t, zero, dtype(1.0))
+            if t >= zero and t <= dtype(1.0):
+                r = p - (a + t * ab)
+                lr = wp.length(r)
+                nrm = away(r, lr, vec3(zero, zero, dtype(1.0)))
+                d = lr - rad
+                if kind == TUBE:
+                    d = rad - lr
+                    nrm = -nrm
+        elif kind == BENT_TUBE:
+            cv = column(md, i, j, OB_C)
+            bend = md.obst[i, j, OB_BEND]
+            centre = a + bend * cv
+            z = wp.cross(bv, cv)
+            w = p - centre
+            w = w - wp.dot(w, z) * z
+            lw = wp.length(w)
+            if lw > zero:
+                u = w / lw
+                theta = wp.atan2(wp.dot(u, bv), -wp.dot(u, cv))
+                if theta < zero:
+                    theta = theta + two_pi
+                if theta <= md.obst[i, j, OB_ANGLE]:
+                    r = p - (centre + bend * u)
+                    lr = wp.length(r)
+                    d = rad - lr
+                    nrm = -away(r, lr, u)
+        return d, nrm
+
+    return SimpleNamespace(surface=surface)
+
+
+@functools.cache
+def make_contact(dtype, dynamic: bool):
+    """``surface`` and ``contact_force`` for one precision."""
+    vec3 = wp.types.vector(3, dtype)
+    zero = dtype(0.0)
+    half = dtype(0.5)
+    far = dtype(FAR)
+    Model = make_structs(dtype, dynamic).Model
+    row = make_rows(dtype, dynamic).row
+    surface = make_surface(dtype, dynamic).surface
+
+    @wp.func
+    def contact_force(md: Model, b: int, node: int, p: vec3):
+        """The obstacles' point force on ``node`` at p (world frame) [N] and the smallest gap
+        there [m] (negative: penetration)."""
+        i = row(b, md.obst)
+        ig = row(b, md.grid)
+        n_int = md.grid.shape[1] - 1
+        lo = wp.max(node - 1, 0)
+        hi = wp.min(node + 1, n_int)
+        share = half * (md.grid[ig, hi] - md.grid[ig, lo])
+        ir = row(b, md.rod)
+        per_len = md.rod[ir, FORCE_SCALE] / md.rod[ir, LENGTH]  # E I / L^3 [N/m] is k eps
+        force = vec3()
+        gap = far
+        for j in range(md.n_obst):
+            d, nrm = surface(md, i, j, p)
+            g = d - md.obst[i, j, OB_REACH]
+            gap = wp.min(gap, g)
+            k = md.obst[i, j, OB_STIFF]
+            eps = per_len / k
+            delta = -g
+            phi = zero
+            if delta >= half * eps:
+                phi = delta
+            elif delta > -half * eps:
+                e = delta + half * eps
+                phi = e * e / (dtype(2.0) * eps)
+            force += (k * share * phi) * nrm
+        return force, gap
+
+    return SimpleNamespace(surface=surface, contact_force=contact_force)
+
+
+@functools.cache
+def make_contact_kernel(dtype):
+    """The kernel ``contact_nodes``: at every node of solved shapes the contact force [N] and the
+    gap to each obstacle [m] (statics' outputs; compiled only for scenes with obstacles)."""
+    vec3 = wp.types.vector(3, dtype)
+    Model = make_structs(dtype, False).Model
+    funcs = make_contact(dtype, False)
+    row = make_rows(dtype, False).row
+
+    @wp.kernel
+    def contact_nodes(md: Model, pos: wp.array2d(dtype=vec3), force: wp.array2d(dtype=vec3),
+                      gap: wp.array3d(dtype=dtype)):
+        b, k = wp.tid()
+        p = pos[b, k]
+        f, _g = funcs.contact_force(md, b, k, p)
+        force[b, k] = f
+        i = row(b, md.obst)
+        for j in range(md.n_obst):
+            d, _n = funcs.surface(md, i, j, p)
+            gap[b, k, j] = d - md.obst[i, j, OB_REACH]
+
+    return contact_nodes

@@ -1,0 +1,165 @@
+"""Contact with obstacles, on the host: rigid obstacles stiffened toward rigid contact, and what
+a solve reports of contact (the law itself is kernels/contact.py).
+
+A rigid obstacle starts at the penalty stiffness k0 of tdcr_warp.core.build.pack_obstacles. After
+a solve, every rod whose deepest penetration of a rigid obstacle exceeds the tolerance
+(``StaticOptions.contact_tolerance`` times the rod's radius), or that the law's rounded band
+still pushes from further off the surface than that, is solved again, from its last solution,
+with that obstacle's stiffness raised by the factor that the linear law says brings the
+penetration to half the tolerance and the band within it (2 to 1000 per round), up to
+``contact_steps`` rounds, climbing there by factors of at most 10 per solve; a solve that fails is
+taken back and retried at the square root of its factor (``Contact.climb``), so a rod never
+loses its last converged solution. A rod that fails from the start, or converges through an
+obstacle, restarts with its obstacles 1e-4 times as stiff and climbs back (``Contact.soften``).
+Each rod's schedule is its own: a rod's answer never depends on its neighbours in the batch. A rod still beyond the tolerance, or
+clamped inside an obstacle, is flagged ``PENETRATION``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import warp as wp
+
+from tdcr_warp.core.solver import Shooting
+from tdcr_warp.kernels import layout
+from tdcr_warp.kernels.contact import make_contact_kernel
+
+__all__ = ["Contact", "chunk_contacts"]
+
+MAX_FACTOR = 1e3  # the most one round of stiffening asks for
+STEP, MIN_STEP, MAX_TRIES = 10.0, 1.15, 40  # climbing: the first factor per solve, the smallest, the most solves
+SOFT = 1e-4  # a failed rod restarts with its obstacles this many times as stiff
+EXACT = {"broyden": False}  # the schedule's solves: a Jacobian at every iterate (the contact set moves)
+
+
+class Contact:
+    """The contact of one chunk of rods (its Shooting's own per-rod obstacle table)."""
+
+    def __init__(self, sh: Shooting, table: np.ndarray, rod: np.ndarray, rigid: np.ndarray, reach: np.ndarray):
+        self.sh = sh
+        b, n1 = sh.b, sh.n1
+        self.start_table = np.array(np.broadcast_to(table, (b,) + table.shape[1:]))
+        self.rigid = rigid  # (O,) bool
+        self.reach = np.broadcast_to(reach, (b,))  # the rods' radii [m]
+        self.per_len = np.broadcast_to(rod[:, layout.FORCE_SCALE] / rod[:, layout.LENGTH], (b,))  # E I / L^3
+        self.table = self.start_table.copy()
+        sh.model.obst = sh.dev.array(self.table)
+        self.kernel = make_contact_kernel(sh.dev.wdtype)
+        self.force = wp.zeros((b, n1), dtype=sh.kern.vec3, device=sh.device)
+        self.gap = wp.zeros((b, n1, table.shape[1]), dtype=sh.dev.wdtype, device=sh.device)
+
+    def reset(self, stiffness: np.ndarray | None) -> None:
+        """Every obstacle at its first stiffness, the rigid ones at ``stiffness`` (b, O) [N/m^2]
+        where given (a warm start's: its schedule need not be climbed again; a compliant obstacle
+        keeps its own)."""
+        self.table = self.start_table.copy()
+        if stiffness is not None and stiffness.shape == self.table.shape[:2]:
+            k = self.table[..., layout.OB_STIFF]
+            self.table[..., layout.OB_STIFF] = np.where(self.rigid[None], stiffness, k)
+        self.sh.dev.put(self.sh.model.obst, self.table)
+
+    def measure(self) -> tuple[np.ndarray, np.ndarray]:
+        """The contact force (b, N+1, 3) [N] and the gap to each obstacle (b, N+1, O) [m] at the
+        nodes of the last stored shapes."""
+        sh = self.sh
+        wp.launch(self.kernel, dim=(sh.b, sh.n1), inputs=[sh.model, sh.nodes.p, self.force, self.gap],
+                  device=sh.device)
+        return self.force.numpy().astype(np.float64), self.gap.numpy().astype(np.float64)
+
+    def penetration(self, gap: np.ndarray) -> np.ndarray:
+        """(b, O) the deepest penetration of each obstacle [m] (0 where none)."""
+        return np.maximum(0.0, -gap.min(axis=1))
+
+    def band(self, gap: np.ndarray) -> np.ndarray:
+        """(b, O) half the width of the law's rounded band, eps / 2 = E I / (2 L^3 k) [m], for
+        the obstacles that touch (gap < eps / 2 at a node; 0 elsewhere): how far off the surface
+        a node may still be pushed."""
+        half = 0.5 * self.per_len[:, None] / self.table[..., layout.OB_STIFF]
+        return np.where(gap.min(axis=1) < half, half, 0.0)
+
+    def _count(self, rods: np.ndarray, iters: np.ndarray, shots: np.ndarray) -> None:
+        it, sn = self.sh.counts()
+        iters[rods] += it[rods]
+        shots[rods] += sn[rods]
+
+    def climb(self, rods: np.ndarray, goal: np.ndarray, newton: dict, iters: np.ndarray, shots: np.ndarray) -> None:
+        """The obstacles of ``rods`` from their stiffness to ``goal`` (b, O), each rod from its last
+        solution by factors of up to STEP; a step that fails is taken back (stiffness and solution)
+        and tried again at its square root, down to MIN_STEP, where the rod stays."""
+        sh, ok = self.sh, rods.copy()
+        step = np.full(sh.b, STEP)
+        for _ in range(MAX_TRIES):
+            k = self.table[..., layout.OB_STIFF]
+            ok &= (goal > k * (1 + 1e-12)).any(axis=1) & (step >= MIN_STEP)
+            if not ok.any():
+                return
+            x_prev, old = sh.host(sh.newton.x).get(), self.table.copy()
+            self.table[..., layout.OB_STIFF] = np.where(ok[:, None], np.minimum(goal, k * step[:, None]), k)
+            sh.dev.put(sh.model.obst, self.table)
+            sh.solve(None, mask=ok, fresh_jacobian=True, **newton)
+            self._count(ok, iters, shots)
+            failed = ok & ~sh.converged()
+            if failed.any():
+                self.table[failed] = old[failed]
+                sh.dev.put(sh.model.obst, self.table)
+                sh.solve(x_prev, mask=failed, fresh_jacobian=True, **newton)
+                self._count(failed, iters, shots)
+                step[failed] = np.sqrt(step[failed])
+
+    def soften(self, x0: np.ndarray, newton: dict) -> None:
+        """The rods that failed, or that converged through an obstacle (deeper than their radius: a
+        rod that passed into it rather than pressed on it): solved again from ``x0`` with every
+        obstacle SOFT times as stiff (close to the free problem), then ``climb`` back."""
+        sh, newton = self.sh, newton | EXACT
+        _f, gap = self.measure()
+        failed = ~sh.converged() | (self.penetration(gap).max(axis=1, initial=0.0) > self.reach)
+        if not failed.any():
+            return
+        iters, shots = sh.counts()
+        goal = self.table[..., layout.OB_STIFF].copy()
+        self.table[failed, :, layout.OB_STIFF] *= SOFT
+        sh.dev.put(sh.model.obst, self.table)
+        sh.solve(x0, mask=failed, fresh_jacobian=True, **newton)
+        self._count(failed, iters, shots)
+        self.climb(failed & sh.converged(), goal, newton, iters, shots)
+        sh.set_counts(iters, shots)
+
+    def stiffen(self, tolerance: float, steps: int, newton: dict) -> None:
+        """Rigid obstacles stiffened until each rod's penetration is within ``tolerance`` radii
+        (see the module); iterations and integrations add up over the schedule."""
+        sh, newton = self.sh, newton | EXACT
+        iters, shots = sh.counts()
+        limit = tolerance * self.reach[:, None]
+        for _ in range(steps):
+            _f, gap = self.measure()
+            pen, band = self.penetration(gap), self.band(gap)
+            over = ((pen > limit) | (band > limit)) & self.rigid[None] & sh.converged()[:, None]
+            if not over.any():
+                break
+            factor = np.where(over, np.clip(np.maximum(2.0 * pen, band) / limit, 2.0, MAX_FACTOR), 1.0)
+            k = self.table[..., layout.OB_STIFF].copy()
+            self.climb(over.any(axis=1), k * factor, newton, iters, shots)
+            if np.array_equal(k, self.table[..., layout.OB_STIFF]):
+                break  # no rod could stiffen further
+        sh.set_counts(iters, shots)
+
+    def results(self, tolerance: float, status: np.ndarray) -> dict[str, np.ndarray]:
+        """What a solve reports of contact, and ``status`` with PENETRATION where a rigid
+        obstacle is penetrated beyond the tolerance (or the base is inside one)."""
+        force, gap = self.measure()
+        limit = tolerance * self.reach[:, None]
+        bad = (((self.penetration(gap) > limit) | (self.band(gap) > limit)) & self.rigid[None]).any(axis=1)
+        bad |= (gap[:, 0] < -limit).any(axis=1)
+        return {"contact_force": force, "contact_gap": gap, "contact_stiffness": self.table[..., layout.OB_STIFF].copy(),
+                "status": np.where(bad, status | layout.PENETRATION, status)}
+
+
+def chunk_contacts(robot, tables, solvers: list[Shooting], chunks: list[tuple[int, int]]) -> list[Contact]:
+    """The Contact of each chunk's Shooting (none without obstacles)."""
+    if not tables.features.contact:
+        return []
+    rigid = np.array([ob.rigid for ob in robot.obstacles], dtype=bool)
+    radius = robot.radius
+    return [Contact(sh, tables.rows("obst", lo, hi), tables.rows("rod", lo, hi), rigid,
+                    radius[lo:hi] if len(radius) > 1 else radius)
+            for sh, (lo, hi) in zip(solvers, chunks)]
