@@ -9,8 +9,10 @@ with that obstacle's stiffness raised by the factor that the linear law says bri
 penetration to half the tolerance and the band within it (2 to 1000 per round), up to
 ``contact_steps`` rounds, climbing there by factors of at most 10 per solve; a solve that fails is
 taken back and retried at the square root of its factor (``Contact.climb``), so a rod never
-loses its last converged solution. A rod that fails from the start, or converges through an
-obstacle, restarts with its obstacles 1e-4 times as stiff and climbs back (``Contact.soften``).
+loses its last converged solution. A cold solve starts with every obstacle 1e-3 times as stiff
+(close to the free problem: Newton from the straight rod converges as it does without them);
+then the rods that touch climb back, the others take the stiffness at once (``Contact.settle``),
+and a rod that failed restarts 1e-6 times as stiff and climbs.
 Each rod's schedule is its own: a rod's answer never depends on its neighbours in the batch. A rod still beyond the tolerance, or
 clamped inside an obstacle, is flagged ``PENETRATION``.
 """
@@ -28,8 +30,8 @@ __all__ = ["Contact", "chunk_contacts"]
 
 MAX_FACTOR = 1e3  # the most one round of stiffening asks for
 STEP, MIN_STEP, MAX_TRIES = 10.0, 1.15, 40  # climbing: the first factor per solve, the smallest, the most solves
-SOFT = 1e-4  # a failed rod restarts with its obstacles this many times as stiff
-EXACT = {"broyden": False}  # the schedule's solves: a Jacobian at every iterate (the contact set moves)
+SOFT = 1e-3  # a cold solve starts with its obstacles this many times as stiff (a failed rod: SOFT^2)
+EXACT = {"broyden": False}  # a failed step's retry: a Jacobian at every iterate (the contact set moves)
 
 
 class Contact:
@@ -49,13 +51,16 @@ class Contact:
         self.gap = wp.zeros((b, n1, table.shape[1]), dtype=sh.dev.wdtype, device=sh.device)
 
     def reset(self, stiffness: np.ndarray | None) -> None:
-        """Every obstacle at its first stiffness, the rigid ones at ``stiffness`` (b, O) [N/m^2]
-        where given (a warm start's: its schedule need not be climbed again; a compliant obstacle
-        keeps its own)."""
+        """A cold start: every obstacle SOFT times its stiffness (``settle`` climbs back); a warm
+        one: the rigid obstacles at ``stiffness`` (b, O) [N/m^2] (the warm start's: its schedule
+        need not be climbed again), a compliant one at its own."""
         self.table = self.start_table.copy()
+        k = self.table[..., layout.OB_STIFF]
         if stiffness is not None and stiffness.shape == self.table.shape[:2]:
-            k = self.table[..., layout.OB_STIFF]
             self.table[..., layout.OB_STIFF] = np.where(self.rigid[None], stiffness, k)
+        self.goal = self.table[..., layout.OB_STIFF].copy()
+        if stiffness is None:
+            self.table[..., layout.OB_STIFF] = k * SOFT
         self.sh.dev.put(self.sh.model.obst, self.table)
 
     def measure(self) -> tuple[np.ndarray, np.ndarray]:
@@ -70,11 +75,15 @@ class Contact:
         """(b, O) the deepest penetration of each obstacle [m] (0 where none)."""
         return np.maximum(0.0, -gap.min(axis=1))
 
+    def half_band(self) -> np.ndarray:
+        """(b, O) half the width of the law's rounded band, eps / 2 = E I / (2 L^3 k) [m]: a node
+        nearer an obstacle than that is pushed."""
+        return 0.5 * self.per_len[:, None] / self.table[..., layout.OB_STIFF]
+
     def band(self, gap: np.ndarray) -> np.ndarray:
-        """(b, O) half the width of the law's rounded band, eps / 2 = E I / (2 L^3 k) [m], for
-        the obstacles that touch (gap < eps / 2 at a node; 0 elsewhere): how far off the surface
+        """(b, O) ``half_band`` for the obstacles that touch (0 elsewhere): how far off the surface
         a node may still be pushed."""
-        half = 0.5 * self.per_len[:, None] / self.table[..., layout.OB_STIFF]
+        half = self.half_band()
         return np.where(gap.min(axis=1) < half, half, 0.0)
 
     def _count(self, rods: np.ndarray, iters: np.ndarray, shots: np.ndarray) -> None:
@@ -84,10 +93,11 @@ class Contact:
 
     def climb(self, rods: np.ndarray, goal: np.ndarray, newton: dict, iters: np.ndarray, shots: np.ndarray) -> None:
         """The obstacles of ``rods`` from their stiffness to ``goal`` (b, O), each rod from its last
-        solution by factors of up to STEP; a step that fails is taken back (stiffness and solution)
-        and tried again at its square root, down to MIN_STEP, where the rod stays."""
+        solution by factors of up to STEP, with Broyden's updates; a step that fails is taken back
+        (stiffness and solution) and tried again with a Jacobian at every iterate, and if that
+        fails too at the square root of its factor, down to MIN_STEP, where the rod stays."""
         sh, ok = self.sh, rods.copy()
-        step = np.full(sh.b, STEP)
+        step, exact = np.full(sh.b, STEP), np.zeros(sh.b, dtype=bool)
         for _ in range(MAX_TRIES):
             k = self.table[..., layout.OB_STIFF]
             ok &= (goal > k * (1 + 1e-12)).any(axis=1) & (step >= MIN_STEP)
@@ -96,38 +106,48 @@ class Contact:
             x_prev, old = sh.host(sh.newton.x).get(), self.table.copy()
             self.table[..., layout.OB_STIFF] = np.where(ok[:, None], np.minimum(goal, k * step[:, None]), k)
             sh.dev.put(sh.model.obst, self.table)
-            sh.solve(None, mask=ok, fresh_jacobian=True, **newton)
-            self._count(ok, iters, shots)
+            for group, how in ((ok & ~exact, newton), (ok & exact, newton | EXACT)):
+                if group.any():
+                    sh.solve(x_prev, mask=group, fresh_jacobian=True, **how)
+                    self._count(group, iters, shots)
             failed = ok & ~sh.converged()
+            exact &= ~(ok & ~failed)  # a step taken: the next starts with Broyden again
             if failed.any():
                 self.table[failed] = old[failed]
                 sh.dev.put(sh.model.obst, self.table)
                 sh.solve(x_prev, mask=failed, fresh_jacobian=True, **newton)
                 self._count(failed, iters, shots)
-                step[failed] = np.sqrt(step[failed])
+                step[failed & exact] = np.sqrt(step[failed & exact])
+                exact |= failed
 
-    def soften(self, x0: np.ndarray, newton: dict) -> None:
-        """The rods that failed, or that converged through an obstacle (deeper than their radius: a
-        rod that passed into it rather than pressed on it): solved again from ``x0`` with every
-        obstacle SOFT times as stiff (close to the free problem), then ``climb`` back."""
-        sh, newton = self.sh, newton | EXACT
-        _f, gap = self.measure()
-        failed = ~sh.converged() | (self.penetration(gap).max(axis=1, initial=0.0) > self.reach)
-        if not failed.any():
+    def settle(self, x0: np.ndarray, newton: dict) -> None:
+        """After the first solve: the rods that touch nothing take their obstacles' stiffness as it
+        is (their shape does not change), those that touch ``climb`` to it; a rod that failed is
+        solved again from ``x0`` with its obstacles SOFT times softer still, and climbs."""
+        sh = self.sh
+        if np.array_equal(self.table[..., layout.OB_STIFF], self.goal):
             return
         iters, shots = sh.counts()
-        goal = self.table[..., layout.OB_STIFF].copy()
-        self.table[failed, :, layout.OB_STIFF] *= SOFT
+        ok = sh.converged()
+        _f, gap = self.measure()
+        touching = (gap.min(axis=1) < self.half_band()).any(axis=1)
+        quiet = ok & ~touching
+        self.table[quiet, :, layout.OB_STIFF] = self.goal[quiet]
         sh.dev.put(sh.model.obst, self.table)
-        sh.solve(x0, mask=failed, fresh_jacobian=True, **newton)
-        self._count(failed, iters, shots)
-        self.climb(failed & sh.converged(), goal, newton, iters, shots)
+        self.climb(ok & touching, self.goal, newton, iters, shots)
+        failed = ~ok
+        if failed.any():
+            self.table[failed, :, layout.OB_STIFF] = self.goal[failed] * SOFT * SOFT
+            sh.dev.put(sh.model.obst, self.table)
+            sh.solve(x0, mask=failed, fresh_jacobian=True, **newton)
+            self._count(failed, iters, shots)
+            self.climb(failed & sh.converged(), self.goal, newton, iters, shots)
         sh.set_counts(iters, shots)
 
     def stiffen(self, tolerance: float, steps: int, newton: dict) -> None:
         """Rigid obstacles stiffened until each rod's penetration is within ``tolerance`` radii
         (see the module); iterations and integrations add up over the schedule."""
-        sh, newton = self.sh, newton | EXACT
+        sh = self.sh
         iters, shots = sh.counts()
         limit = tolerance * self.reach[:, None]
         for _ in range(steps):

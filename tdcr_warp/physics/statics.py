@@ -386,7 +386,7 @@ class StaticProblem:
         if job.free is not None and not sh.converged().all():
             _hold(sh, tables, lo, hi, x0, newton)
         if contact:
-            contact.soften(x0, newton)
+            contact.settle(x0, newton)
             contact.stiffen(self.opts.contact_tolerance, self.opts.contact_steps, newton)
         if len(self.disp):
             settle_slack(sh, taut, self.disp, self.j_of, newton)
