@@ -5,7 +5,9 @@ from __future__ import annotations
 import json
 import os
 import platform
+import statistics
 import subprocess
+import time
 from pathlib import Path
 
 import numpy as np
@@ -46,6 +48,18 @@ def no_hardware_data(data: Path, out) -> bool:
     print(f"no data at {data}: nothing to do")
     write_report(out, {"meta": metadata("cpu"), "skipped": f"no data at {data}"})
     return True
+
+
+def interleaved_times(cases: dict, repeats: int) -> tuple[dict, dict]:
+    """Each case (name -> callable) timed ``repeats`` times, the cases interleaved within each
+    round (a noisy shared machine drifts alike for all): (times per case [s], their medians)."""
+    times = {name: [] for name in cases}
+    for _ in range(repeats):
+        for name, f in cases.items():
+            t = time.perf_counter()
+            f()
+            times[name].append(time.perf_counter() - t)
+    return times, {k: statistics.median(v) for k, v in times.items()}
 
 
 def write_report(path, report: dict) -> None:

@@ -12,7 +12,6 @@ results/bench_contact.json.
 from __future__ import annotations
 
 import argparse
-import statistics
 import sys
 import time
 from pathlib import Path
@@ -20,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import ROOT, metadata, write_report  # noqa: E402
+from _common import ROOT, interleaved_times, metadata, write_report  # noqa: E402
 
 import tdcr_warp as tw  # noqa: E402
 from tdcr_warp.model.world import Obstacle  # noqa: E402
@@ -64,13 +63,7 @@ def main(argv=None) -> int:
         cold[name] = time.perf_counter() - t
     touching = (np.abs(sols["plane"].contact_force).sum(axis=(1, 2)) > 0)
     pen = sols["plane"].penetration[:, 0]
-    times = {name: [] for name in cases}
-    for _ in range(args.repeats):
-        for name, f in cases.items():
-            t = time.perf_counter()
-            f()
-            times[name].append(time.perf_counter() - t)
-    med = {k: statistics.median(v) for k, v in times.items()}
+    times, med = interleaved_times(cases, args.repeats)
     ratio = med["plane"] / med["free"]
     success = {k: int(s.success.sum()) for k, s in sols.items()}
     iters = {k: float(np.mean(s.iterations)) for k, s in sols.items()}

@@ -14,7 +14,6 @@ docs/performance.md in Markdown.
 from __future__ import annotations
 
 import argparse
-import statistics
 import sys
 import time
 from pathlib import Path
@@ -22,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import ROOT, metadata, write_report  # noqa: E402
+from _common import ROOT, interleaved_times, metadata, write_report  # noqa: E402
 
 import tdcr_warp as tw  # noqa: E402
 from tdcr_warp.physics.statics import reference_lengths  # noqa: E402
@@ -83,13 +82,7 @@ def main(argv=None) -> int:
     for name, s in sols.items():
         assert s.converged.all(), (name, s.failure_reasons())
     err = np.abs(sols["displacement"].tip_position - sols["tension"].tip_position).max()
-    times = {name: [] for name in cases}
-    for _ in range(args.repeats):
-        for name, f in cases.items():
-            t = time.perf_counter()
-            f()
-            times[name].append(time.perf_counter() - t)
-    med = {k: statistics.median(v) for k, v in times.items()}
+    times, med = interleaved_times(cases, args.repeats)
     iters = {k: float(np.mean(s.iterations)) for k, s in sols.items()}
     shots = {k: float(np.mean(s.integrations)) for k, s in sols.items()}
     base = {k: "tension_taut" if k.endswith("_taut") else "tension" for k in cases}
