@@ -249,3 +249,34 @@ def test_search_figure_titles_the_unsettled_band(captured, tmp_path):
     assert band.get_height() > 0
     assert ax.yaxis.get_major_formatter()(0.2, 0) == "0.2"  # plain numbers, not 2 x 10^-1
     assert [t.get_text() for t in ax.get_legend().get_texts()][-1] == "grid: 1,000 closed loops"
+
+
+def test_obstacles_are_drawn_in_the_figure_and_the_viewer():
+    """Every obstacle kind as an outline on its surface: grey lines in every view of the figure
+    (gid "obstacle") and a trace each in the HTML viewer."""
+    from tdcr_warp.io.drawing import obstacle_outlines
+    from tdcr_warp.io.viewer import robot_figure
+
+    obstacles = [tw.Obstacle("plane", point=(0.05, 0, 0), normal=(-1, 0, 0)),
+                 tw.Obstacle("sphere", center=(0.03, 0, 0.3), radius=0.01),
+                 tw.Obstacle("capsule", start=(-0.03, -0.02, 0.2), end=(-0.03, 0.02, 0.2), radius=0.005),
+                 tw.Obstacle("tube", start=(0, 0, -0.01), end=(0, 0, 0.2), radius=0.004),
+                 tw.Obstacle("bent_tube", start=(0, 0, 0.2), direction=(0, 0, 1), toward=(1, 0, 0), bend_radius=0.3,
+                             angle=0.8, radius=0.004)]
+    robot = tw.Robot(length=0.5, obstacles=obstacles)
+    outlines = obstacle_outlines(robot)
+    on_surface = [lambda p: p[:, 0] - 0.05, lambda p: np.linalg.norm(p - [0.03, 0, 0.3], axis=1) - 0.01,
+                  None, lambda p: np.hypot(p[:, 0], p[:, 1]) - 0.004,
+                  lambda p: np.hypot(np.hypot(p[:, 0] - 0.3, p[:, 2] - 0.2) - 0.3, p[:, 1]) - 0.004]
+    for outline, f in zip(outlines, on_surface):
+        pts = outline[~np.isnan(outline[:, 0])]
+        if f is not None:
+            assert np.abs(f(pts)).max() < 1e-12
+    s = np.linspace(0, 0.5, 11)
+    P = np.stack([np.zeros(11), np.zeros(11), s], axis=1)[None]
+    R = np.broadcast_to(np.eye(3), (1, 11, 3, 3))
+    g = robot_geometry(robot, P, R, s, np.zeros((1, 0)))
+    fig = plot_robot(g)
+    assert all(sum(ln.get_gid() == "obstacle" for ln in ax.lines) == 5 for ax in fig.axes[:3])
+    names = [t.name for t in robot_figure(robot, P, R, s, np.zeros((1, 0))).data]
+    assert [n for n in names if n.startswith("obstacle")] == [f"obstacle {j}" for j in range(5)]

@@ -231,3 +231,29 @@ def test_sweep_over_displacements_and_friction_reports_slack(tmp_path):
         sc = scene_from_dict(d)
         sol = tw.solve_static(sc.robot, sc.tensions, options=sc.options, **sc.static_command())
         assert np.abs(sol.tip_position[0] - res["tip_position"][i]).max() < 1e-12
+
+
+def test_sweep_over_an_obstacles_pose_flags_contact(tmp_path):
+    """A grid over where a wall stands (the plane x = w, facing -x) in front of a rod bending
+    toward +x: the near walls are touched and hold the tip back (their penetration within the
+    tolerance), the far ones leave the free tip as it is."""
+    data = tomllib.loads(BASE + """
+[[obstacles]]
+kind = "plane"
+point = [0.2, 0.0, 0.0]
+normal = [-1.0, 0.0, 0.0]
+[sweep.grid]
+"obstacles[0].point[0]" = [0.002, 0.02, 5]
+""")
+    res = run_sweep(data, static_job, tmp_path, progress=False).load()
+    wall = res["sample:obstacles[0].point[0]"]
+    free = scene_from_dict(tomllib.loads(BASE))
+    tip = tw.solve_static(free.robot, free.tensions, options=free.options).tip_position[0]
+    assert res["ok"].all()
+    touched = res["in_contact"].astype(bool)
+    assert touched.any() and not touched.all()
+    assert np.array_equal(touched, wall < tip[0] + 1e-3)
+    assert np.all(res["tip_position"][touched, 0] <= wall[touched] - 1e-3 + 0.01 * 1e-3 + 1e-12)
+    assert np.abs(res["tip_position"][~touched] - tip).max() < 1e-12
+    assert np.all(res["penetration"] <= 0.01 * 1e-3)
+    assert_documented(res)

@@ -27,7 +27,8 @@ def static_job(scene: Scene, device=None, shapes: bool = False) -> dict[str, np.
     """Compact per-rod statics: tip pose, success (converged and not unstable), status bits,
     iterations, residual, tensions; with ``shapes`` also the backbone positions (B, N+1, 3); the
     stability index (and branch) unless the solver's ``stability`` is off, with ``sensitivities``
-    the tip Jacobian and compliance."""
+    the tip Jacobian and compliance; with obstacles ``in_contact`` (B,) and ``penetration`` (B,) [m]
+    (the deepest of any obstacle)."""
     sol = solve_static(scene.robot, scene.tensions, options=scene.options, device=device, **scene.static_command())
     out = {"tip_position": sol.tip_position, "tip_rotation": sol.tip_rotation, "ok": sol.success,
            "status": sol.status, "iterations": sol.iterations, "residual": sol.residual, "tensions": scene.tensions,
@@ -40,6 +41,9 @@ def static_job(scene: Scene, device=None, shapes: bool = False) -> dict[str, np.
             out["branch"] = sol.branch
     if sol.tip_jacobian is not None:
         out["tip_jacobian"], out["tip_compliance"] = sol.tip_jacobian, sol.tip_compliance
+    if sol.contact_force is not None:  # with obstacles: whether the rod touches one, and how deep it sinks
+        out["in_contact"] = np.abs(sol.contact_force).sum(axis=(1, 2)) > 0
+        out["penetration"] = sol.penetration.max(axis=1)
     if shapes:
         out["positions"] = sol.positions
     return out

@@ -13,7 +13,7 @@ disks to draw and their radius:
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -67,7 +67,8 @@ class RobotGeometry:
     disk_frames (B, D, 3, 3) (columns: the body axes d1, d2, d3 = the backbone's tangent
     frame), disk_radius; tendon_s[k] (B, P_k) and tendon_points[k] (B, P_k, 3): tendon k from
     the base through every disk it passes to its end; tension (B, K) [N] at the base;
-    tip_position (B, 3), tip_rotation (B, 3, 3)."""
+    tip_position (B, 3), tip_rotation (B, 3, 3); obstacles: each obstacle's outline as polylines
+    (P, 3), NaN rows between them (rod 0's pose, ``obstacle_outlines``)."""
 
     s: np.ndarray
     backbone: np.ndarray
@@ -80,6 +81,7 @@ class RobotGeometry:
     tension: np.ndarray
     tip_position: np.ndarray
     tip_rotation: np.ndarray
+    obstacles: list = field(default_factory=list)
 
     @property
     def rods(self) -> int:
@@ -114,6 +116,52 @@ def _orthonormal(R: np.ndarray) -> np.ndarray:
     """The nearest rotations of interpolated frames (..., 3, 3) (polar decomposition)."""
     u, _, vt = np.linalg.svd(R)
     return u @ vt
+
+
+def _ring(centre: np.ndarray, u: np.ndarray, v: np.ndarray, radius: float, points: int = 36) -> np.ndarray:
+    a = np.linspace(0.0, 2 * np.pi, points + 1)[:, None]
+    return centre + radius * (np.cos(a) * u + np.sin(a) * v)
+
+
+def _across(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit vectors across the unit vector d."""
+    u = np.cross(d, [1.0, 0.0, 0.0] if abs(d[0]) < 0.9 else [0.0, 1.0, 0.0])
+    u /= np.linalg.norm(u)
+    return u, np.cross(d, u)
+
+
+def obstacle_outlines(robot: Robot) -> list:
+    """Each obstacle of rod 0 as polylines (P, 3) [m] joined by NaN rows: a plane as a square of
+    the rod's length with a cross, a sphere as three great circles, a capsule or tube as its end
+    rings and four lines along it, a bent tube as rings along its arc and four lines."""
+    out, size = [], float(robot.length[0])
+    gap = np.full((1, 3), np.nan)
+    for ob in robot.obstacles:
+        parts = []
+        if ob.kind == "plane":
+            c, n = ob.point[0], ob.normal[0]
+            u, v = _across(n)
+            corners = [c + size * (a * u + b * v) for a, b in ((-1, -1), (1, -1), (1, 1), (-1, 1), (-1, -1))]
+            parts = [np.array(corners), np.array([c - size * u, c + size * u]), np.array([c - size * v, c + size * v])]
+        elif ob.kind == "sphere":
+            c, r, e = ob.center[0], float(ob.radius[0]), np.eye(3)
+            parts = [_ring(c, e[i], e[(i + 1) % 3], r) for i in range(3)]
+        elif ob.kind in ("capsule", "tube"):
+            a, b, r = ob.start[0], ob.end[0], float(ob.radius[0])
+            u, v = _across((b - a) / np.linalg.norm(b - a))
+            parts = [_ring(a, u, v, r), _ring(b, u, v, r)] + [np.array([a + r * w, b + r * w]) for w in (u, -u, v, -v)]
+        else:  # bent tube: its centre line turns from direction toward toward, about their normal
+            a, d, t = ob.start[0], ob.direction[0], ob.toward[0]
+            bend, r, angle = float(ob.bend_radius[0]), float(ob.radius[0]), float(ob.angle[0])
+            z = np.cross(d, t)
+            th = np.linspace(0.0, angle, 25)[:, None]
+            centre = a + bend * t
+            line = centre + bend * (np.sin(th) * d - np.cos(th) * t)  # the centre line
+            normal = np.sin(th) * d - np.cos(th) * t
+            parts = [line + r * w for w in (normal, -normal)] + [line + r * z, line - r * z]
+            parts += [_ring(line[i], normal[i], z, r) for i in range(0, len(th), 6)]
+        out.append(np.concatenate([np.concatenate([p, gap]) for p in parts])[:-1])
+    return out
 
 
 def robot_geometry(robot: Robot, positions: np.ndarray, rotations: np.ndarray, s: np.ndarray, tensions,
@@ -162,4 +210,4 @@ def robot_geometry(robot: Robot, positions: np.ndarray, rotations: np.ndarray, s
         tendon_points.append(np.stack([np.pad(x, ((0, width - len(x)), (0, 0)), mode="edge") for x in pts]))
     return RobotGeometry(s=S, backbone=P, disk_s=disk_s, disk_centres=centres, disk_frames=frames,
                          disk_radius=radius, tendon_s=tendon_s, tendon_points=tendon_points, tension=tau.copy(),
-                         tip_position=P[:, -1], tip_rotation=R[:, -1])
+                         tip_position=P[:, -1], tip_rotation=R[:, -1], obstacles=obstacle_outlines(robot))

@@ -14,6 +14,7 @@ import numpy as np  # noqa: E402
 from tdcr_warp.io.drawing import AXIS_COLOURS, DISK_COLOUR, TENSION_SCALE, rod_colours  # noqa: E402
 
 MAX_RODS_DRAWN = 200
+OBSTACLE_COLOUR = "0.45"  # the obstacles' outlines: grey
 
 
 def _save(fig, path: Path) -> None:
@@ -107,8 +108,8 @@ def _draw_robot(axes: dict, geom, converged, tension_norm, cmap) -> None:
     """Draw every rod of ``geom`` (drawing.RobotGeometry) into the views ``axes`` (3d, side, top;
     :func:`_robot_axes`): backbone, every disk (the top view: the tip disk alone, not a stack of
     rims, and a dashed ring of the disks' radius around the base), every tendon coloured by its
-    tension, its ends (top view), the base and tip frames (3d and side). Artists carry a gid:
-    backbone, disk, base, tendon, tendon end, frame."""
+    tension, its ends (top view), the base and tip frames (3d and side), the obstacles' outlines
+    (rod 0's). Artists carry a gid: backbone, disk, base, tendon, tendon end, frame, obstacle."""
     rims, rings = geom.disk_rims(RIM_POINTS), _base_rings(geom)
     colours = rod_colours(geom.rods)
     length = geom.axis_length
@@ -116,6 +117,8 @@ def _draw_robot(axes: dict, geom, converged, tension_norm, cmap) -> None:
     def line(keys, pts, *fmt, **kw):
         for key in keys:
             axes[key].plot(*(pts[..., c] * MM for c in ROBOT_VIEWS[key]), *fmt, **kw)
+    for outline in geom.obstacles:
+        line(ROBOT_VIEWS, outline, color=OBSTACLE_COLOUR, lw=1.0, gid="obstacle", zorder=0)
     for b in range(geom.rods):
         ok = converged is None or bool(converged[b])
         full = b < MAX_ROBOTS_DRAWN
@@ -160,6 +163,9 @@ def _robot_legend(fig, geom, converged, cmap) -> None:
     handles += [Line2D([], [], color=DISK_COLOUR, lw=0.8), Line2D([], [], color=cmap(0.6), lw=1.5),
                 tuple(Line2D([], [], color=c, lw=1.5) for c in AXIS_COLOURS)]
     labels += ["spacer disks", "tendons (colour: tension)", "base and tip frames (x, y, z)"]
+    if geom.obstacles:
+        handles.append(Line2D([], [], color=OBSTACLE_COLOUR, lw=1.0))
+        labels.append("obstacles")
     fig.legend(handles, labels, loc="outside lower center", ncols=min(len(labels), 7), fontsize=9, frameon=False,
                handler_map={tuple: HandlerTuple(ndivide=None)})
 

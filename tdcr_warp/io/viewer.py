@@ -107,6 +107,11 @@ def _traces(g: RobotGeometry, colours, cmax: float, axis_length: float, base, ba
                           colorbar=dict(title=dict(text="tension [N]"), thickness=14, len=0.6)),
                 hovertemplate=(f"{names[b]} tendon {k}<br>tension = %{{customdata[1]:.3f}} N<br>"
                                "s = %{customdata[0]:.4f} m<extra></extra>")))
+    for j, outline in enumerate(g.obstacles):
+        q = outline * MM
+        traces.append(dict(type="scatter3d", mode="lines", name=f"obstacle {j}", showlegend=False,
+                           x=_f32(q[:, 0]), y=_f32(q[:, 1]), z=_f32(q[:, 2]), connectgaps=False,
+                           line=dict(color="#888888", width=3), hovertemplate=f"obstacle {j}<extra></extra>"))
     origins = np.concatenate([base, g.tip_position]) * MM
     frames = np.concatenate([base_R, g.tip_rotation])
     for j, seg in enumerate(_axes_segments(origins, frames, axis_length * MM)):
@@ -130,7 +135,8 @@ def _geometries(robot: Robot, P, R, s, tau, display) -> list[RobotGeometry]:
                           disk_centres=cut(g.disk_centres, i), disk_frames=cut(g.disk_frames, i),
                           disk_radius=g.disk_radius, tendon_s=[cut(t, i) for t in g.tendon_s],
                           tendon_points=[cut(t, i) for t in g.tendon_points], tension=cut(g.tension, i),
-                          tip_position=cut(g.tip_position, i), tip_rotation=cut(g.tip_rotation, i))
+                          tip_position=cut(g.tip_position, i), tip_rotation=cut(g.tip_rotation, i),
+                          obstacles=g.obstacles)
             for i in range(F)]
 
 
