@@ -43,6 +43,14 @@ def follow(sh: Shooting, set_load, steps: np.ndarray, mask: np.ndarray, start, n
     return iters, shots
 
 
+def _report(sh: Shooting, iters: np.ndarray, shots: np.ndarray) -> None:
+    """The rods a path touched report its sums of iterations and integrations (``follow``'s)."""
+    touched = shots > 0
+    it, sn = sh.counts()
+    it[touched], sn[touched] = iters[touched], shots[touched]
+    sh.set_counts(it, sn)
+
+
 def continuation_steps(x0: np.ndarray, minimum: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Which rods need a load continuation and over how many steps, from the scaled
     straight-rod start x0 (b, nu; its first 6 are n(0), m(0)): beyond ~1.5 rad of linear
@@ -91,10 +99,7 @@ def load_continuation(sh: Shooting, rod0: np.ndarray, pforce0: np.ndarray, tau: 
     finally:
         md.rod, md.pforce = own_rod, own_pf
         sh.set_command(tau, None if lengths is None else lengths[1])
-    touched = shots > 0
-    it, sh_n = sh.counts()
-    it[touched], sh_n[touched] = iters[touched], shots[touched]
-    sh.set_counts(it, sh_n)
+    _report(sh, iters, shots)
 
 
 def holding_path(sh: Shooting, tipc: np.ndarray, compliance: np.ndarray, start: np.ndarray, mask: np.ndarray,
@@ -120,10 +125,7 @@ def holding_path(sh: Shooting, tipc: np.ndarray, compliance: np.ndarray, start: 
         iters, shots = follow(sh, set_compliance, np.full(sh.b, steps), mask, start, newton | {"broyden": False})
     finally:
         md.tipc = own
-    touched = shots > 0
-    it, sn = sh.counts()
-    it[touched], sn[touched] = iters[touched], shots[touched]
-    sh.set_counts(it, sn)
+    _report(sh, iters, shots)
 
 
 def retry(sh: Shooting, set_load, failed: np.ndarray, start, newton: dict, continuation: int) -> np.ndarray:

@@ -198,8 +198,7 @@ class Robot:
         _check_ranges(self)
         object.__setattr__(self, "tendons", _items("tendons", self.tendons, Tendon))
         object.__setattr__(self, "point_forces", _items("point_forces", self.point_forces, PointForce))
-        object.__setattr__(self, "obstacles", _items("obstacles", self.obstacles, Obstacle))
-        _items("tip_constraint", () if self.tip_constraint is None else (self.tip_constraint,), TipConstraint)
+        _set_world(self)
         object.__setattr__(self, "batch_size", _batch(_per_rod_fields(self)))
         with np.errstate(all="ignore"):
             object.__setattr__(self, "_section", self._compute_section())
@@ -336,6 +335,14 @@ def _check_ranges(robot: Robot) -> None:
         check_values(name, getattr(robot, name), getattr(robot, name) >= 0, ">= 0")
     nu = robot.poisson_ratio
     check_values("poisson_ratio", nu, (nu > -1) & (nu < 0.5), "in (-1, 0.5)")
+
+
+def _set_world(robot: Robot) -> None:
+    """obstacles: a tuple of Obstacle; tip_constraint: a TipConstraint or None."""
+    object.__setattr__(robot, "obstacles", _items("obstacles", robot.obstacles, Obstacle))
+    tip = robot.tip_constraint
+    if tip is not None and not isinstance(tip, TipConstraint):
+        raise InputError(f"tip_constraint: expected TipConstraint or None, got {type(tip).__name__}")
 
 
 def _per_rod_fields(robot: Robot) -> dict[str, np.ndarray]:

@@ -169,7 +169,7 @@ class TipConstraint:
     def table(self) -> np.ndarray:
         """(1|B, TC_WIDTH): the point, the directions held and compliance 0 (kernels/layout.py)."""
         if self.kind == "point":
-            basis = np.broadcast_to(np.eye(3).reshape(1, 9), (1, 9))
+            basis = np.eye(3).reshape(1, 9)
         elif self.kind == "plane":
             basis = np.concatenate([self.normal, np.zeros((len(self.normal), 6))], axis=1)
         else:

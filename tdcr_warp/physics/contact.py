@@ -26,12 +26,17 @@ from tdcr_warp.core.solver import Shooting
 from tdcr_warp.kernels import layout
 from tdcr_warp.kernels.contact import make_contact_kernel
 
-__all__ = ["Contact", "chunk_contacts"]
+__all__ = ["Contact", "chunk_contacts", "penetration"]
 
 MAX_FACTOR = 1e3  # the most one round of stiffening asks for
 STEP, MIN_STEP, MAX_TRIES = 10.0, 1.15, 40  # climbing: the first factor per solve, the smallest, the most solves
 SOFT = 1e-3  # a cold solve starts with its obstacles this many times as stiff (a failed rod: SOFT^2)
 EXACT = {"broyden": False}  # a failed step's retry: a Jacobian at every iterate (the contact set moves)
+
+
+def penetration(gap: np.ndarray) -> np.ndarray:
+    """(b, O) the deepest penetration of each obstacle [m] (0 where none) from the gaps (b, N+1, O)."""
+    return np.maximum(0.0, -gap.min(axis=1))
 
 
 class Contact:
@@ -69,11 +74,7 @@ class Contact:
         sh = self.sh
         wp.launch(self.kernel, dim=(sh.b, sh.n1), inputs=[sh.model, sh.nodes.p, self.force, self.gap],
                   device=sh.device)
-        return self.force.numpy().astype(np.float64), self.gap.numpy().astype(np.float64)
-
-    def penetration(self, gap: np.ndarray) -> np.ndarray:
-        """(b, O) the deepest penetration of each obstacle [m] (0 where none)."""
-        return np.maximum(0.0, -gap.min(axis=1))
+        return self.sh.host(self.force).get(np.float64), self.sh.host(self.gap).get(np.float64)
 
     def half_band(self) -> np.ndarray:
         """(b, O) half the width of the law's rounded band, eps / 2 = E I / (2 L^3 k) [m]: a node
@@ -152,7 +153,7 @@ class Contact:
         limit = tolerance * self.reach[:, None]
         for _ in range(steps):
             _f, gap = self.measure()
-            pen, band = self.penetration(gap), self.band(gap)
+            pen, band = penetration(gap), self.band(gap)
             over = ((pen > limit) | (band > limit)) & self.rigid[None] & sh.converged()[:, None]
             if not over.any():
                 break
@@ -168,7 +169,7 @@ class Contact:
         obstacle is penetrated beyond the tolerance (or the base is inside one)."""
         force, gap = self.measure()
         limit = tolerance * self.reach[:, None]
-        bad = (((self.penetration(gap) > limit) | (self.band(gap) > limit)) & self.rigid[None]).any(axis=1)
+        bad = (((penetration(gap) > limit) | (self.band(gap) > limit)) & self.rigid[None]).any(axis=1)
         bad |= (gap[:, 0] < -limit).any(axis=1)
         return {"contact_force": force, "contact_gap": gap, "contact_stiffness": self.table[..., layout.OB_STIFF].copy(),
                 "status": np.where(bad, status | layout.PENETRATION, status)}

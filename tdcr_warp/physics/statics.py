@@ -27,7 +27,7 @@ from tdcr_warp.kernels import layout
 from tdcr_warp.model.options import StaticOptions, describe_status
 from tdcr_warp.model.robot import InputError, Robot, check_command, check_slip, real_array, require_memory
 from tdcr_warp.physics.assessment import Assessor
-from tdcr_warp.physics.contact import chunk_contacts
+from tdcr_warp.physics.contact import chunk_contacts, penetration
 from tdcr_warp.physics.sensitivity import parameter_tables
 from tdcr_warp.physics.slack import available_lengths, linear_tensions, settle_slack, tendon_compliance
 
@@ -182,7 +182,7 @@ class StaticSolution(RodRows):
     @property
     def penetration(self) -> np.ndarray | None:
         """(B, O) the deepest penetration of each obstacle [m] (0 where none; None without obstacles)."""
-        return None if self.contact_gap is None else np.maximum(0.0, -self.contact_gap.min(axis=1))
+        return None if self.contact_gap is None else penetration(self.contact_gap)
 
     @property
     def tip_position(self) -> np.ndarray:
