@@ -18,6 +18,11 @@ exactly the linear penalty; as k grows, eps and the penetration at a given force
 error of the penalty, which the stiffening of tdcr_warp/physics/contact.py bounds.) The force acts through the centre line (a frictionless surface), so it adds no moment,
 and being a point force at a node it keeps global force and moment balance exact.
 
+In dynamics the force is damped the Hunt-Crossley way: times max(0, 1 + c d delta/dt), c the
+obstacle's damping [s/m] and d delta/dt = -n . p_t the rate at which the node presses in (p_t =
+R q its velocity). The damping vanishes with the penetration, so the force is continuous at
+first touch, and it never pulls the rod back onto the surface.
+
   surface        the distance from p to an obstacle's surface and the normal there
   contact_force  the sum of the obstacles' forces at a node and the smallest gap
   contact kernel the force and gap at every node of solved shapes (outputs)
@@ -38,6 +43,7 @@ from .layout import (
     OB_B,
     OB_BEND,
     OB_C,
+    OB_DAMP,
     OB_KIND,
     OB_RADIUS,
     OB_REACH,
@@ -139,9 +145,9 @@ def make_contact(dtype, dynamic: bool):
     surface = make_surface(dtype, dynamic).surface
 
     @wp.func
-    def contact_force(md: Model, b: int, node: int, p: vec3):
-        """The obstacles' point force on ``node`` at p (world frame) [N] and the smallest gap
-        there [m] (negative: penetration)."""
+    def contact_force(md: Model, b: int, node: int, p: vec3, vel: vec3):
+        """The obstacles' point force on ``node`` at p moving at vel (world frame; dynamics) [N]
+        and the smallest gap there [m] (negative: penetration)."""
         i = row(b, md.obst)
         ig = row(b, md.grid)
         n_int = md.grid.shape[1] - 1
@@ -165,6 +171,8 @@ def make_contact(dtype, dynamic: bool):
             elif delta > -half * eps:
                 e = delta + half * eps
                 phi = e * e / (dtype(2.0) * eps)
+            if wp.static(dynamic):
+                phi = phi * wp.max(zero, dtype(1.0) - md.obst[i, j, OB_DAMP] * wp.dot(nrm, vel))
             force += (k * share * phi) * nrm
         return force, gap
 
@@ -172,20 +180,26 @@ def make_contact(dtype, dynamic: bool):
 
 
 @functools.cache
-def make_contact_kernel(dtype):
-    """The kernel ``contact_nodes``: at every node of solved shapes the contact force [N] and the
-    gap to each obstacle [m] (statics' outputs; compiled only for scenes with obstacles)."""
+def make_contact_kernel(dtype, dynamic: bool = False):
+    """The kernel ``contact_nodes``: at every node of solved shapes (positions ``pos``) the
+    contact force [N] and the gap to each obstacle [m] (outputs; compiled only for scenes with
+    obstacles). In dynamics the force is damped by the nodes' velocities R q (``rot`` and the
+    body-frame ``vel``; statics ignores both)."""
     vec3 = wp.types.vector(3, dtype)
-    Model = make_structs(dtype, False).Model
-    funcs = make_contact(dtype, False)
-    row = make_rows(dtype, False).row
+    mat33 = wp.types.matrix((3, 3), dtype)
+    Model = make_structs(dtype, dynamic).Model
+    funcs = make_contact(dtype, dynamic)
+    row = make_rows(dtype, dynamic).row
 
     @wp.kernel
-    def contact_nodes(md: Model, pos: wp.array2d(dtype=vec3), force: wp.array2d(dtype=vec3),
-                      gap: wp.array3d(dtype=dtype)):
+    def contact_nodes(md: Model, pos: wp.array2d(dtype=vec3), rot: wp.array2d(dtype=mat33),
+                      vel: wp.array2d(dtype=vec3), force: wp.array2d(dtype=vec3), gap: wp.array3d(dtype=dtype)):
         b, k = wp.tid()
         p = pos[b, k]
-        f, _g = funcs.contact_force(md, b, k, p)
+        pt = vec3()
+        if wp.static(dynamic):
+            pt = rot[b, k] * vel[b, k]
+        f, _g = funcs.contact_force(md, b, k, p, pt)
         force[b, k] = f
         i = row(b, md.obst)
         for j in range(md.n_obst):

@@ -36,9 +36,10 @@ TENDON_WIDTH = 10
 #   OB_BEND, OB_ANGLE bent tube: radius of the bend's centre line [m] and its angle [rad]
 #   OB_STIFF          penalty stiffness k of the contact [N/m per m of rod]
 #   OB_REACH          the rod's contact radius (its radius) [m]
+#   OB_DAMP           the contact's Hunt-Crossley damping factor [s/m] (dynamics)
 PLANE, SPHERE, CAPSULE, TUBE, BENT_TUBE = range(5)
-OB_KIND, OB_A, OB_B, OB_C, OB_RADIUS, OB_BEND, OB_ANGLE, OB_STIFF, OB_REACH = 0, 1, 4, 7, 10, 11, 12, 13, 14
-OB_WIDTH = 15
+OB_KIND, OB_A, OB_B, OB_C, OB_RADIUS, OB_BEND, OB_ANGLE, OB_STIFF, OB_REACH, OB_DAMP = 0, 1, 4, 7, 10, 11, 12, 13, 14, 15
+OB_WIDTH = 16
 
 # ``tipc`` array, shape (1 or B, TC_WIDTH): a constrained tip (Robot.tip_constraint). TC_POINT..+2
 # the point c the tip is held to; TC_BASIS..+8 up to three unit vectors e_i: the tip is held

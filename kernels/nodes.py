@@ -37,12 +37,12 @@ def make_node_busy(dtype, model: str, dynamic: bool, features: Features):
 
     @wp.func
     def node_busy(md: Model, b: int, node: int):
-        """1 if a tendon ends, a disk sits or a point force acts at ``node`` (with obstacles:
-        every node, where contact may push)."""
-        busy = int(0)
+        """1 if a tendon ends, a disk sits or a point force acts at ``node``, or (with obstacles)
+        contact may push there (``md.near``: every node, but in the probes of a solved shape)."""
+        busy = int(0)  # noqa: UP018 (a dynamic variable for Warp)
         if wp.static(features.contact):
-            busy = 1
-        elif wp.static(disks):
+            busy = md.near[row(b, md.near), node]
+        if wp.static(disks):
             if md.dnext[row(b, md.dnext), node] >= 0:
                 busy = 1
         else:
@@ -105,7 +105,7 @@ def make_node_jumps(dtype, integrator: str, model: str, dynamic: bool, rod: str,
             return n, m, E
         touch = int(0)
         if wp.static(features.contact):
-            fc, _gap = contact_force(md, b, node, p)
+            fc, _gap = contact_force(md, b, node, p, R * q)
             if fc[0] != zero or fc[1] != zero or fc[2] != zero:
                 n = n - fc
                 touch = 1

@@ -47,6 +47,7 @@ def make_structs(dtype, dynamic: bool):
         route: wp.array4d(dtype=dtype)  # (1, K, S, 9) spline segments: s_i, then x and y cubic coefficients
         obst: wp.array3d(dtype=dtype)  # (1|B, O, OB_WIDTH) obstacles and the contact law (kernels/contact.py)
         tipc: wp.array2d(dtype=dtype)  # (1|B, TC_WIDTH) a constrained tip: the point and the directions held
+        near: wp.array2d(dtype=int)  # (1|B, N+1) with obstacles: 1 where contact may act at a node (kernels/nodes.py)
         n_tendons: int
         n_points: int
         n_obst: int

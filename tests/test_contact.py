@@ -10,7 +10,7 @@ import pytest
 from tdcr_warp.core.build import Tables
 from tdcr_warp.kernels import layout
 from tdcr_warp.kernels.drivers import module_names
-from tdcr_warp.model.robot import InputError, Obstacle, Robot
+from tdcr_warp.model.robot import InputError, Obstacle, PointForce, Robot, Tendon
 from tdcr_warp.physics.statics import solve_static
 
 # a nitinol wire sagging under its own weight (gravity -x): w = rho A g, tip sag w L^4 / (8 EI)
@@ -167,3 +167,26 @@ def test_contact_compiles_only_with_obstacles():
     names = [module_names(wp.float64, "rk4", "coupled", False, "cosserat", f)["fused"] for f in (f0, f1)]
     assert "contact" not in names[0] and names[1].endswith("_contact")
     assert solve_static(free, NONE, nodes=20).contact_force is None
+
+
+def test_sensitivities_with_contact_are_the_derivatives_of_the_solves():
+    """Four tendons pull a rod onto a compliant wall (a fixed penalty: the solve is a smooth
+    function of the tensions) while a second rod stays clear of it: the tip Jacobian (the probes
+    count contact only at the nodes near the wall and take double steps elsewhere) equals the
+    central differences of whole solves, h = 1e-4 N. A point force on the rod (a load at a node,
+    as contact is) compiles with contact."""
+    rob = Robot(length=0.2, radius=0.5e-3, youngs_modulus=60e9, density=6450.0, gravity=(0.0, 0.0, -9.81),
+                tendons=[Tendon(offset=o) for o in [(0.004, 0.0), (0.0, 0.004), (-0.004, 0.0), (0.0, -0.004)]],
+                point_forces=[PointForce(0.1, (0.0, 0.01, 0.0))],
+                obstacles=[Obstacle("plane", point=(0.012, 0.0, 0.0), normal=(-1.0, 0.0, 0.0), stiffness=1e5)])
+    tau = np.array([[2.0, 0.3, 0.1, 0.1], [0.1, 0.3, 1.0, 0.1]])
+    sol = solve_static(rob, tau, nodes=40, sensitivities=True, tol=1e-12)
+    assert sol.success.all() and np.abs(sol.contact_force[0]).sum() > 0 and np.abs(sol.contact_force[1]).sum() == 0
+    h = 1e-4
+    for k in range(4):
+        d = np.zeros(4)
+        d[k] = h
+        up, down = (solve_static(rob, tau + sgn * d, nodes=40, tol=1e-12).tip_position for sgn in (1, -1))
+        fd = (up - down) / (2 * h)
+        assert np.abs(sol.tip_jacobian[:, :3, k] - fd).max() < 1e-5 * np.abs(fd).max() + 1e-9, k
+    assert (sol.stability_index == 0).all()

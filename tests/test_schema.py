@@ -109,7 +109,7 @@ def _full_scene() -> dict:
     d["hardware"] = {"servo_columns": [f"m{k}" for k in range(len(d["tendons"]))]}
     d["display"] = {"disks": 5}
     d["uncertainty"] = [{"field": "robot.youngs_modulus", "distribution": "normal", "params": [190e9, 1e9]}]
-    d["obstacles"] = [{"kind": "plane", "point": [0.1, 0.0, 0.0], "normal": [-1.0, 0.0, 0.0]}]
+    d["obstacles"] = [{"kind": "plane", "point": [0.1, 0.0, 0.0], "normal": [-1.0, 0.0, 0.0], "damping": 2.0}]
     d["tip"] = {"kind": "plane", "point": [0.0, 0.0, 0.4], "normal": [1.0, 0.0, 0.0]}
     return d
 

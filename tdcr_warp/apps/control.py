@@ -370,7 +370,8 @@ class TipController:
 class ControlRun:
     """Closed-loop record: time (T+1,), tip_position, tip_velocity, error = desired - tip_position
     (T+1, B, 3) [m, m/s, m], sliding (T+1, B, 3) [m/s], tensions (T, B, K) [N] (commanding
-    displacements: the tensions at the motors at the end of each step), converged (T, B), target
+    displacements: the tensions at the motors at the end of each step), converged (T, B),
+    penetration (T, B) [m] (the deepest into any obstacle; 0 without obstacles), target
     (B, 3) (where the desired path starts), desired (T+1, B, 3) [m] (the desired tip);
     displacements (T, B, K) [m]: the commanded motor displacements (empty when tensions are);
     shape_steps (S,), positions (S, B, N+1, 3) [m] and rotations (S, B, N+1, 3, 3): the shapes
@@ -386,6 +387,7 @@ class ControlRun:
     tensions: np.ndarray
     converged: np.ndarray
     target: np.ndarray
+    penetration: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
     desired: np.ndarray = field(default_factory=lambda: np.zeros((0, 0, 3)))
     displacements: np.ndarray = field(default_factory=lambda: np.zeros((0, 0, 0)))
     shape_steps: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int32))
@@ -405,7 +407,7 @@ def run_closed_loop(sim: Simulator, controller: TipController, steps: int, *, pr
     B, K = sim.B, sim.robot.n_tendons
     n1 = sim.grid.shape[1]
     disp = controller.command == "displacement"
-    require_memory(steps * B * (8.0 * (12 + (2 if disp else 1) * K) + 1)
+    require_memory(steps * B * (8.0 * (13 + (2 if disp else 1) * K) + 1)
                    + (steps // shapes_every if shapes_every else 0) * B * 96.0 * n1,
                    f"steps = {steps} for {B} rod(s): the closed-loop record")
     tip = np.zeros((steps + 1, B, 3))
@@ -414,6 +416,7 @@ def run_closed_loop(sim: Simulator, controller: TipController, steps: int, *, pr
     taus = np.zeros((steps, B, K))
     qs = np.zeros((steps if disp else 0, B, K))
     conv = np.zeros((steps, B), dtype=bool)
+    pen = np.zeros((steps, B))
     desired = np.zeros((steps + 1, B, 3))
     tip[0], vel[0] = sim.tip_position, sim.tip_velocity
     t0 = sim.steps_done * sim.dt
@@ -430,7 +433,7 @@ def run_closed_loop(sim: Simulator, controller: TipController, steps: int, *, pr
         else:
             taus[i] = controller()
             r = sim.step(taus[i])
-        tip[i + 1], vel[i + 1], conv[i] = r.tip_position, r.tip_velocity, r.converged
+        tip[i + 1], vel[i + 1], conv[i], pen[i] = r.tip_position, r.tip_velocity, r.converged, r.penetration
         p_d, v_d, _ = controller.desired(t0 + (i + 1) * sim.dt)
         desired[i + 1] = p_d
         S[i + 1] = controller.surface(p_d - tip[i + 1], v_d - vel[i + 1])
@@ -444,7 +447,7 @@ def run_closed_loop(sim: Simulator, controller: TipController, steps: int, *, pr
     if bar:
         bar.close()
     return ControlRun(time=sim.dt * np.arange(steps + 1), tip_position=tip, tip_velocity=vel,
-                      error=desired - tip, sliding=S, tensions=taus, converged=conv,
+                      error=desired - tip, sliding=S, tensions=taus, converged=conv, penetration=pen,
                       target=controller.target.copy(), desired=desired, displacements=qs, shape_steps=np.array(shape_steps, dtype=np.int32),
                       positions=np.array([p for p, _ in shapes]) if shapes else np.zeros((0, B, n1, 3)),
                       rotations=np.array([R for _, R in shapes]) if shapes else np.zeros((0, B, n1, 3, 3)),

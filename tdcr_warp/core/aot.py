@@ -23,7 +23,7 @@ from typing import NamedTuple
 
 from tdcr_warp.kernels.variants import ALL, INTEGRATORS, MODELS, RODS, Features
 
-__all__ = ["Variant", "compile_variant", "covering_variants", "all_variants", "main"]
+__all__ = ["Variant", "compile_variant", "covering_variants", "all_variants", "group", "main"]
 
 PRECISIONS = ("float64", "float32")
 NONE = Features(gravity=False, point_loads=False, helix=False, drag=False, kinks=False)
@@ -59,8 +59,8 @@ def all_variants() -> list[Variant]:
 def covering_variants() -> list[Variant]:
     """Every precision, integrator, tendon model, rod model, statics and dynamics, both extreme
     feature sets, and tendon states (friction, displacement unknowns) with either tendon model,
-    each at least once, and the disk model (7 variants; spline routes in the first with tendon
-    states)."""
+    each at least once, the disk model, and obstacles with a held tip in statics and dynamics (9
+    variants; spline routes in the first with tendon states)."""
     states = dict(friction=True, tendons=4, displaced=2, spline=True)
     return [Variant("float64", "rk4", "coupled", "cosserat", False, ALL),
             Variant("float32", "midpoint", "point", "kirchhoff", True, ALL),
@@ -68,12 +68,15 @@ def covering_variants() -> list[Variant]:
             Variant("float32", "rk4", "point", "cosserat", False, NONE),
             Variant("float64", "rk4", "coupled", "cosserat", False, ALL._replace(**states)),
             Variant("float32", "midpoint", "point", "kirchhoff", False, NONE._replace(**states)),
-            Variant("float64", "rk4", "disks", "cosserat", False, ALL._replace(tendons=16, displaced=2))]
+            Variant("float64", "rk4", "disks", "cosserat", False, ALL._replace(tendons=16, displaced=2)),
+            Variant("float64", "rk4", "coupled", "cosserat", True, ALL._replace(contact=True, tip=3)),
+            Variant("float32", "midpoint", "point", "kirchhoff", False, NONE._replace(contact=True, tip=1))]
 
 
 def _modules(v: Variant):
     import warp as wp
 
+    from tdcr_warp.kernels.contact import make_contact_kernel
     from tdcr_warp.kernels.history import make_history_kernels
     from tdcr_warp.kernels.shooting import make_shooting_kernels
 
@@ -82,6 +85,8 @@ def _modules(v: Variant):
     mods = [k.solve.module, k.probe.module, k.evaluate.module]  # evaluate: dynamics, and the probes of sensitivities
     if v.dynamic:
         mods.append(make_history_kernels(dtype).end_step.module)
+    if v.features.contact:  # the contact outputs (one module for every precision and variant)
+        mods.append(make_contact_kernel(dtype, v.dynamic).module)
     return mods
 
 
@@ -98,6 +103,11 @@ def compile_variant(v: Variant, arch: int, out_dir: str) -> list[tuple[str, floa
     return done
 
 
+def group(module: str) -> str:
+    """A built module's kind: fused, probes, evaluate, history or contact."""
+    return module.split("_")[2] if module.startswith("tdcr_warp_") else module.rsplit(".", 1)[-1]
+
+
 def compile_all(variants: list[Variant], arch: int, out_dir: str, jobs: int, log=print) -> list:
     """compile_variant for each variant, ``jobs`` processes at a time (NVRTC is single-threaded)."""
     results = []
@@ -106,7 +116,7 @@ def compile_all(variants: list[Variant], arch: int, out_dir: str, jobs: int, log
         for v, fut in futures:
             mods = fut.result()
             results.append((v, mods))
-            log(f"  {v}: " + ", ".join(f"{name.split('_')[2]} {sec:.0f} s" for name, sec, _ in mods))
+            log(f"  {v}: " + ", ".join(f"{group(name)} {sec:.0f} s" for name, sec, _ in mods))
     return results
 
 

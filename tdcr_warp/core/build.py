@@ -106,11 +106,13 @@ RIGID_START = 1e-2  # a rigid obstacle's first stiffness: a load of E I / L^3 pe
 
 def pack_obstacles(robot: Robot) -> np.ndarray:
     """(1|B, O, layout.OB_WIDTH): each obstacle's geometry, its penalty stiffness (a rigid one's
-    first, k0 = E I / (L^3 0.01 r): stiffened by tdcr_warp.physics.contact) and the rod's radius."""
+    first, k0 = E I / (L^3 0.01 r): stiffened by tdcr_warp.physics.contact), the rod's radius and
+    the contact's damping."""
     if not robot.obstacles:
         return np.zeros((1, 0, layout.OB_WIDTH))
     k0 = robot.section()["kbt"][:, 0] / (robot.length**3 * RIGID_START * robot.radius)
-    rows = [_columns([ob.geometry(), (k0 if ob.rigid else ob.stiffness)[:, None], robot.radius[:, None]],
+    rows = [_columns([ob.geometry(), (k0 if ob.rigid else ob.stiffness)[:, None], robot.radius[:, None],
+                      ob.damping[:, None]],
                      layout.OB_WIDTH) for ob in robot.obstacles]
     b = max(r.shape[0] for r in rows)
     return np.stack([np.broadcast_to(r, (b, layout.OB_WIDTH)) for r in rows], axis=1)
@@ -277,6 +279,13 @@ class Tables:
     def scale_rows(self, B: int) -> np.ndarray:
         return np.broadcast_to(self.scales, (B, self.nu))
 
+    def tip_reaction(self, x: np.ndarray) -> np.ndarray:
+        """(B, 3) the force a constrained tip takes [N] (world) from the scaled unknowns x (B, nu)."""
+        B, first = x.shape[0], 6 + self.features.displaced
+        lam = x[:, first:] * self.scale_rows(B)[:, first:]
+        basis = self.tipc[:, layout.TC_BASIS:layout.TC_BASIS + 9].reshape(-1, 3, 3)[:, :lam.shape[1]]
+        return np.einsum("bi,bij->bj", lam, np.broadcast_to(basis, (B,) + basis.shape[1:]))
+
     @property
     def stiffness(self) -> np.ndarray:
         """(1|B, 6) the Kse and Kbt diagonals [N, N m^2]."""
@@ -402,6 +411,7 @@ def put_model(kern, dev: Device, tables: Tables, lo: int, hi: int):
     md.route = dev.array(tables.route if tables.route.shape[1] else np.zeros((1, 1, 1, 9)))
     md.obst = dev.array(_pad(tables.rows("obst", lo, hi), (1, layout.OB_WIDTH)))
     md.tipc = dev.array(tables.rows("tipc", lo, hi))
+    md.near = dev.array(np.ones((hi - lo, tables.grid.shape[1]) if tables.features.contact else (1, 1)), np.int32)
     md.n_tendons = tables.tendon.shape[1]
     md.n_points = tables.pforce.shape[1]
     md.n_obst = tables.obst.shape[1]

@@ -169,8 +169,10 @@ _TABLES = (
             when=("kind", ("bent_tube",))),
         Key("stiffness", "numbers", "N/m^2", "a compliant obstacle's penalty stiffness per length of rod",
             PER_ROD, default_text="rigid"),
+        Key("damping", "numbers", "s/m", "the contact's Hunt-Crossley damping in dynamics: the force grows by "
+            "1 + damping x the rate of penetration", PER_ROD, default=0.0),
     )),
-    Table("tip", "A constrained tip: held at a point, on a plane or along a line, free to rotate (statics).",
+    Table("tip", "A constrained tip: held at a point, on a plane or along a line, free to rotate.",
           keys=(
         Key("kind", "string", "-", "what holds the tip", "", REQUIRED, allowed=("point", "plane", "line"),
             checked_by="TipConstraint"),

@@ -21,7 +21,10 @@ Points and directions [m] are world-frame, (3,) or (B, 3); lengths and angles, a
 (B,): a sweep may move or resize each obstacle per rod. ``stiffness`` None (default): rigid,
 the solver stiffens the contact until the penetration is within tolerance
 (``StaticOptions.contact_tolerance``); a number [N/m per m of rod]: a compliant obstacle
-(tissue) of that penalty stiffness, solved as it is.
+(tissue) of that penalty stiffness, solved as it is. ``damping`` [s/m] (default 0), in
+dynamics: the Hunt-Crossley factor of the contact force, F = k w phi(delta) max(0, 1 + damping
+d delta/dt) n (kernels/contact.py): it dissipates as the rod presses in and vanishes with the
+penetration, so the force stays continuous at first touch.
 """
 
 from __future__ import annotations
@@ -42,7 +45,7 @@ KINDS = {"plane": ("point", "normal"), "sphere": ("center", "radius"), "capsule"
 CODES = {"plane": layout.PLANE, "sphere": layout.SPHERE, "capsule": layout.CAPSULE, "tube": layout.TUBE,
          "bent_tube": layout.BENT_TUBE}
 VECTORS = ("point", "normal", "center", "start", "end", "direction", "toward")
-SCALARS = ("radius", "bend_radius", "angle", "stiffness")
+SCALARS = ("radius", "bend_radius", "angle", "stiffness", "damping")
 
 
 def _unit(name: str, v: np.ndarray) -> np.ndarray:
@@ -69,6 +72,7 @@ class Obstacle:
     bend_radius: object = None
     angle: object = None
     stiffness: object = None
+    damping: object = 0.0
 
     def __post_init__(self):
         if self.kind not in KINDS:
@@ -76,13 +80,13 @@ class Obstacle:
         need = KINDS[self.kind]
         for f in fields(self):
             name, value = f.name, getattr(self, f.name)
-            if name in ("kind", "stiffness"):
+            if name in ("kind", "stiffness", "damping"):
                 continue
             if name in need and value is None:
                 raise InputError(f"{self.kind} obstacle: {name} is required ({', '.join(need)})")
             if name not in need and value is not None:
                 raise InputError(f"{self.kind} obstacle: {name} is not a field of it (its fields: {', '.join(need)})")
-        for name in need + (("stiffness",) if self.stiffness is not None else ()):
+        for name in need + ("damping",) + (("stiffness",) if self.stiffness is not None else ()):
             tail = (3,) if name in VECTORS else ()
             object.__setattr__(self, name, as_field(f"{self.kind} {name}", getattr(self, name), tail))
         self._check_sizes()
@@ -94,6 +98,7 @@ class Obstacle:
             v = getattr(self, name)
             if v is not None:
                 check_values(f"{k} {name}", v, v > 0, "positive")
+        check_values(f"{k} damping", self.damping, self.damping >= 0, "zero or positive")
         if k == "plane":
             object.__setattr__(self, "normal", _unit(f"{k} normal", self.normal))
         if k in ("capsule", "tube"):

@@ -19,6 +19,8 @@ clamped inside an obstacle, is flagged ``PENETRATION``.
 
 from __future__ import annotations
 
+from contextlib import contextmanager
+
 import numpy as np
 import warp as wp
 
@@ -39,8 +41,9 @@ def penetration(gap: np.ndarray) -> np.ndarray:
     return np.maximum(0.0, -gap.min(axis=1))
 
 
-class Contact:
-    """The contact of one chunk of rods (its Shooting's own per-rod obstacle table)."""
+class ContactState:
+    """The contact of one chunk of rods: its Shooting's own per-rod obstacle table, and what the
+    last stored shapes say of it."""
 
     def __init__(self, sh: Shooting, table: np.ndarray, rod: np.ndarray, rigid: np.ndarray, reach: np.ndarray):
         self.sh = sh
@@ -51,7 +54,7 @@ class Contact:
         self.per_len = np.broadcast_to(rod[:, layout.FORCE_SCALE] / rod[:, layout.LENGTH], (b,))  # E I / L^3
         self.table = self.start_table.copy()
         sh.model.obst = sh.dev.array(self.table)
-        self.kernel = make_contact_kernel(sh.dev.wdtype)
+        self.kernel = make_contact_kernel(sh.dev.wdtype, sh.dynamic)
         self.force = wp.zeros((b, n1), dtype=sh.kern.vec3, device=sh.device)
         self.gap = wp.zeros((b, n1, table.shape[1]), dtype=sh.dev.wdtype, device=sh.device)
 
@@ -68,11 +71,16 @@ class Contact:
             self.table[..., layout.OB_STIFF] = k * SOFT
         self.sh.dev.put(self.sh.model.obst, self.table)
 
+    def goal_stiffness(self) -> np.ndarray:
+        """(b, O) every obstacle's stiffness before any schedule [N/m^2] (rigid ones: their base k0)."""
+        return self.start_table[..., layout.OB_STIFF].copy()
+
     def measure(self) -> tuple[np.ndarray, np.ndarray]:
         """The contact force (b, N+1, 3) [N] and the gap to each obstacle (b, N+1, O) [m] at the
         nodes of the last stored shapes."""
-        sh = self.sh
-        wp.launch(self.kernel, dim=(sh.b, sh.n1), inputs=[sh.model, sh.nodes.p, self.force, self.gap],
+        sh, out = self.sh, self.sh.nodes
+        vel = out.q if sh.dynamic else out.p  # statics: no velocities (the kernel reads none)
+        wp.launch(self.kernel, dim=(sh.b, sh.n1), inputs=[sh.model, out.p, out.R, vel, self.force, self.gap],
                   device=sh.device)
         return self.sh.host(self.force).get(np.float64), self.sh.host(self.gap).get(np.float64)
 
@@ -86,6 +94,45 @@ class Contact:
         a node may still be pushed."""
         half = self.half_band()
         return np.where(gap.min(axis=1) < half, half, 0.0)
+
+    @contextmanager
+    def near_only(self, gap: np.ndarray):
+        """Within: contact counts only at the nodes of each rod nearer an obstacle than its radius
+        plus the law's half band in ``gap`` (b, N+1, O) [m], the solved shapes' gaps; elsewhere a
+        node carries no force, and the probes of those shapes (the stability verdict's and the
+        sensitivities', which move a node by far less than a radius) take their double steps
+        over it."""
+        near = (gap < (self.reach[:, None] + self.half_band())[:, None, :]).any(axis=2)
+        mirror = self.sh.host(self.sh.model.near)
+        mirror.put(near.astype(np.int32))
+        try:
+            yield
+        finally:
+            mirror.put(np.ones(near.shape, dtype=np.int32))
+
+    def restore(self) -> None:
+        """Dynamics, before a step: the stiffness each rod had at its stiffest since the start
+        (a step's stiffening is kept, a step's softening is not)."""
+        k = self.table[..., layout.OB_STIFF]
+        self.goal = np.maximum(self.goal, k)
+        if not np.array_equal(k, self.goal):
+            self.table[..., layout.OB_STIFF] = self.goal
+            self.sh.dev.put(self.sh.model.obst, self.table)
+
+    def results(self, tolerance: float, status: np.ndarray) -> dict[str, np.ndarray]:
+        """What a solve reports of contact, and ``status`` with PENETRATION where a rigid
+        obstacle is penetrated beyond the tolerance (or the base is inside one)."""
+        force, gap = self.measure()
+        limit = tolerance * self.reach[:, None]
+        bad = (((penetration(gap) > limit) | (self.band(gap) > limit)) & self.rigid[None]).any(axis=1)
+        bad |= (gap[:, 0] < -limit).any(axis=1)
+        return {"contact_force": force, "contact_gap": gap, "contact_stiffness": self.table[..., layout.OB_STIFF].copy(),
+                "status": np.where(bad, status | layout.PENETRATION, status)}
+
+
+class Contact(ContactState):
+    """The schedule of one chunk's contact: its rigid obstacles climbed, settled, softened and
+    stiffened toward rigid contact (see the module)."""
 
     def _count(self, rods: np.ndarray, iters: np.ndarray, shots: np.ndarray) -> None:
         it, sn = self.sh.counts()
@@ -124,9 +171,13 @@ class Contact:
     def settle(self, x0: np.ndarray, newton: dict) -> None:
         """After the first solve: the rods that touch nothing take their obstacles' stiffness as it
         is (their shape does not change), those that touch ``climb`` to it; a rod that failed is
-        solved again from ``x0`` with its obstacles SOFT times softer still, and climbs."""
+        solved again from ``x0`` with its obstacles SOFT times softer still, and climbs. A warm
+        start (already at the stiffness): the rods it failed for ``soften`` from x0."""
         sh = self.sh
         if np.array_equal(self.table[..., layout.OB_STIFF], self.goal):
+            failed = ~sh.converged()
+            if failed.any():  # too far for the stiff contact
+                self.soften(failed, x0, newton)
             return
         iters, shots = sh.counts()
         ok = sh.converged()
@@ -145,16 +196,34 @@ class Contact:
             self.climb(failed & sh.converged(), self.goal, newton, iters, shots)
         sh.set_counts(iters, shots)
 
-    def stiffen(self, tolerance: float, steps: int, newton: dict) -> None:
-        """Rigid obstacles stiffened until each rod's penetration is within ``tolerance`` radii
-        (see the module); iterations and integrations add up over the schedule."""
+    def soften(self, failed: np.ndarray, x0: np.ndarray, newton: dict) -> np.ndarray:
+        """The rods ``failed`` (b,) solved again from ``x0`` with their obstacles SOFT times as stiff,
+        then climbed back toward their stiffness (a rod that cannot climb all the way keeps the
+        last stiffness it converged at: ``results`` judges its penetration, ``restore`` puts the
+        stiffness back); returns the rods still failing. Iterations add up."""
         sh = self.sh
+        iters, shots = sh.counts()
+        goal = self.table[..., layout.OB_STIFF].copy()
+        self.table[failed, :, layout.OB_STIFF] *= SOFT
+        sh.dev.put(sh.model.obst, self.table)
+        sh.solve(x0, mask=failed, fresh_jacobian=True, **newton)
+        self._count(failed, iters, shots)
+        self.climb(failed & sh.converged(), goal, newton, iters, shots)
+        sh.set_counts(iters, shots)
+        return failed & ~sh.converged()
+
+    def stiffen(self, tolerance: float, steps: int, newton: dict, rods: np.ndarray | None = None) -> None:
+        """Rigid obstacles stiffened until each rod's penetration is within ``tolerance`` radii
+        (see the module; only ``rods`` (b,) bool where given); iterations and integrations add up
+        over the schedule."""
+        sh = self.sh
+        rods = np.ones(sh.b, dtype=bool) if rods is None else rods
         iters, shots = sh.counts()
         limit = tolerance * self.reach[:, None]
         for _ in range(steps):
             _f, gap = self.measure()
             pen, band = penetration(gap), self.band(gap)
-            over = ((pen > limit) | (band > limit)) & self.rigid[None] & sh.converged()[:, None]
+            over = ((pen > limit) | (band > limit)) & self.rigid[None] & (sh.converged() & rods)[:, None]
             if not over.any():
                 break
             factor = np.where(over, np.clip(np.maximum(2.0 * pen, band) / limit, 2.0, MAX_FACTOR), 1.0)
@@ -163,16 +232,6 @@ class Contact:
             if np.array_equal(k, self.table[..., layout.OB_STIFF]):
                 break  # no rod could stiffen further
         sh.set_counts(iters, shots)
-
-    def results(self, tolerance: float, status: np.ndarray) -> dict[str, np.ndarray]:
-        """What a solve reports of contact, and ``status`` with PENETRATION where a rigid
-        obstacle is penetrated beyond the tolerance (or the base is inside one)."""
-        force, gap = self.measure()
-        limit = tolerance * self.reach[:, None]
-        bad = (((penetration(gap) > limit) | (self.band(gap) > limit)) & self.rigid[None]).any(axis=1)
-        bad |= (gap[:, 0] < -limit).any(axis=1)
-        return {"contact_force": force, "contact_gap": gap, "contact_stiffness": self.table[..., layout.OB_STIFF].copy(),
-                "status": np.where(bad, status | layout.PENETRATION, status)}
 
 
 def chunk_contacts(robot, tables, solvers: list[Shooting], chunks: list[tuple[int, int]]) -> list[Contact]:

@@ -26,6 +26,7 @@ from tdcr_warp.kernels import layout
 from tdcr_warp.kernels.history import make_history_kernels
 from tdcr_warp.model.options import StaticOptions
 from tdcr_warp.model.robot import InputError, Robot, check_command, check_tensions, real_array, require_memory
+from tdcr_warp.physics.contact import chunk_contacts, penetration
 from tdcr_warp.physics.slack import available_lengths, settle_slack
 from tdcr_warp.physics.statics import StaticSolution, reference_lengths, solve_static
 
@@ -45,7 +46,9 @@ def bdf_alpha_coefficients(dt: float, alpha: float) -> tuple[float, float, float
 class StepResult:
     """One time step of B rods. tip_position, tip_velocity, tip_acceleration: (B, 3) world
     frame [m, m/s, m/s^2]; converged, iterations, residual [m], status: (B,). Frozen rods
-    (failed earlier) report converged False and their frozen tip."""
+    (failed earlier) report converged False and their frozen tip. penetration (B,): the deepest
+    penetration of any obstacle [m] (0 without obstacles); beyond ``contact_tolerance`` radii the
+    status has PENETRATION (the rod goes on)."""
 
     tip_position: np.ndarray
     tip_velocity: np.ndarray
@@ -54,6 +57,7 @@ class StepResult:
     iterations: np.ndarray
     residual: np.ndarray
     status: np.ndarray
+    penetration: np.ndarray
 
 
 @dataclass
@@ -61,8 +65,8 @@ class Trajectory:
     """Recorded open-loop run of B rods over T steps.
 
     time (T+1,) [s]; tip_position, tip_velocity, tip_acceleration (T+1, B, 3) (index 0 is the
-    initial state); tensions (T, B, K) [N]; converged, iterations, residual [m], status (T, B);
-    failed_step (B,): first failed step or -1; shape_steps (S,), positions (S, B, N+1, 3) [m]
+    initial state); tensions (T, B, K) [N]; converged, iterations, residual [m], status,
+    penetration [m] (T, B) (the deepest into any obstacle; 0 without); failed_step (B,): first failed step or -1; shape_steps (S,), positions (S, B, N+1, 3) [m]
     and rotations (S, B, N+1, 3, 3): full shapes every ``shapes_every`` steps (empty if 0).
     """
 
@@ -75,6 +79,7 @@ class Trajectory:
     iterations: np.ndarray
     residual: np.ndarray
     status: np.ndarray
+    penetration: np.ndarray
     failed_step: np.ndarray
     shape_steps: np.ndarray
     positions: np.ndarray
@@ -134,8 +139,8 @@ def _static_start(robot: Robot, tau: np.ndarray, displacements, initial: StaticS
                                                               displacements=displacements)
     if static.base_wrench.shape[0] != B:
         raise InputError(f"initial: {static.base_wrench.shape[0]} rods, the batch has {B}")
-    if not static.converged.all():
-        bad = np.flatnonzero(~static.converged)
+    bad = np.flatnonzero(~static.converged | ((static.status & layout.PENETRATION) != 0))
+    if len(bad):
         raise InputError(f"the static start did not converge for rods {bad[:10].tolist()} "
                          f"({static.failure_reasons()[bad[0]]})")
     tables = Tables.of(robot, opts.nodes, opts.specialize, opts.kink_loads)
@@ -147,7 +152,61 @@ def _static_start(robot: Robot, tau: np.ndarray, displacements, initial: StaticS
     return static, tables, x0
 
 
-class Simulator:
+class _Readings:
+    """What a Simulator's state says after its last step, read from its chunks (``parts``)."""
+
+    def tip_state(self) -> dict[str, np.ndarray]:
+        """State at the last two nodes of the last evaluation: rotations (B, 2, 3, 3), n, m
+        (B, 2, 3) world frame, q (B, 2, 3) body frame, and the last interval h (B,) [m]."""
+        f64 = np.float64
+        cat = {name: np.concatenate([getattr(c.sh.nodes, name).numpy()[:, -2:].astype(f64) for c in self.parts])
+               for name in ("R", "n", "m", "q")}
+        cat["h"] = self.grid[:, -1] - self.grid[:, -2]
+        return cat
+
+    def tendons(self) -> dict[str, np.ndarray]:
+        """Per rod and tendon (B, K) after the last step (tendon states only): tension_base,
+        tension_end [N], path_length [m], turning [rad] and, with friction, slip: the slip
+        direction that step used (the next one takes it from this step's motion)."""
+        if not self.tables.features.tendons:
+            raise InputError("tendons(): this robot has no tendon states (no displacement control or friction)")
+        td = np.concatenate([c.sh.tendon_table() for c in self.parts])
+        out = {"tension_base": td[..., layout.TO_BASE], "tension_end": td[..., layout.TO_END],
+               "path_length": td[..., layout.TO_PATH], "turning": td[..., layout.TO_TURN]}
+        if self.tables.features.friction:
+            out["slip"] = self.last_slip.copy()
+        return out
+
+    def contact(self) -> dict[str, np.ndarray]:
+        """With obstacles, after the last step: contact_force (B, N+1, 3) the obstacles' point force
+        on each node [N] (world frame, with the contact's damping at the nodes' velocities) and
+        contact_gap (B, N+1, O) each node's gap to each obstacle [m] (negative: penetration)."""
+        if not self.tables.features.contact:
+            raise InputError("contact(): this robot has no obstacles")
+        found = [c.contact.measure() for c in self.parts]
+        return {"contact_force": np.concatenate([f for f, _ in found]),
+                "contact_gap": np.concatenate([g for _, g in found])}
+
+    def tip_reaction(self) -> np.ndarray:
+        """(B, 3) the force the constrained tip takes after the last step [N] (world frame)."""
+        if not self.tables.features.tip:
+            raise InputError("tip_reaction(): this robot's tip is free (no tip_constraint)")
+        return self.tables.tip_reaction(np.concatenate([c.sh.host(c.sh.newton.x).get(np.float64) for c in self.parts]))
+
+    def velocities(self) -> np.ndarray:
+        """(B, N+1, 3) the nodes' velocities R q after the last step [m/s] (world frame)."""
+        R, q = (np.concatenate([getattr(c.sh.nodes, a).numpy().astype(np.float64) for c in self.parts])
+                for a in ("R", "q"))
+        return np.einsum("bnij,bnj->bni", R, q)
+
+    def shapes(self) -> tuple[np.ndarray, np.ndarray]:
+        """Current positions (B, N+1, 3) [m] and rotations (B, N+1, 3, 3) along s (frozen rods:
+        their last trial)."""
+        return (np.concatenate([c.sh.nodes.p.numpy().astype(np.float64) for c in self.parts]),
+                np.concatenate([c.sh.nodes.R.numpy().astype(np.float64) for c in self.parts]))
+
+
+class Simulator(_Readings):
     """Holds the batch state of B rods and advances it in time.
 
     robot: the batch (its damping_shear, damping_bending and drag are the dynamic
@@ -165,6 +224,11 @@ class Simulator:
     sigma = tanh(-d ell / dt / slip_speed) with ell its path length (from the last two steps;
     shortening: sliding toward the motor, +1); the static start uses slip +1. Below
     ``slip_speed`` [m/s] friction fades like viscous friction: dynamics has no static stick.
+
+    Obstacles and a held tip act in every step as in statics (docs/contact.md, "In motion"): the
+    contact damped by each obstacle's ``damping``, a rigid one stiffened where a step presses a rod
+    in beyond ``contact_tolerance`` radii (else PENETRATION in that step's status); ``contact()``,
+    ``velocities()`` and ``tip_reaction()`` read the state after a step.
     """
 
     def __init__(self, robot: Robot, tensions=None, *, dt: float, alpha: float = 0.0,
@@ -187,18 +251,21 @@ class Simulator:
         if self.opts.model in ("constant_curvature", "disks"):
             raise InputError(f"dynamics needs solver model 'coupled' or 'point', got {self.opts.model!r} (the disk "
                              "model is static for now)")
-        if robot.obstacles or robot.tip_constraint is not None:
-            raise InputError("dynamics with obstacles or a constrained tip is not built yet: statics only "
-                             "(solve_static)")
         static, self.tables, x0 = _static_start(robot, tau, displacements, initial, self.opts, self.dev)
         self.grid = np.broadcast_to(self.tables.grid, (self.B, self.tables.grid.shape[1]))
         self.path = static.tendon_path_length
         self.chunks = split(self.B, self.dev, self.opts.threads)
         _, avail = self._command(tau, displacements)
         self.slip = self.last_slip = np.ones((self.B, robot.n_tendons))  # the static start: pulled
+        stiff = static.contact_stiffness
         self.parts = [_Chunk(self, self.tables, lo, hi, tau[lo:hi], x0[lo:hi], static.tip_position[lo:hi],
-                             None if avail is None else avail[lo:hi])
+                             None if avail is None else avail[lo:hi], None if stiff is None else stiff[lo:hi])
                       for lo, hi in self.chunks]
+        if self.tables.features.contact:
+            inside = np.flatnonzero(np.concatenate([c.inside() for c in self.parts]))
+            if len(inside):
+                raise InputError(f"the start of rods {inside[:10].tolist()} is inside an obstacle (beyond "
+                                 f"contact_tolerance = {self.opts.contact_tolerance} radii)")
         self._tau_prev = tau
         self.alive = np.ones(self.B, dtype=bool)
         self.failed_step = np.full(self.B, -1)
@@ -228,7 +295,7 @@ class Simulator:
         self._tau_prev = tau
         if self.tables.features.friction:
             self.last_slip, self.slip = self.slip, self._slip()
-        ok, status, iters, resid = parts[0] if len(parts) == 1 else (np.concatenate(x) for x in zip(*parts))
+        ok, status, iters, resid, pen = parts[0] if len(parts) == 1 else (np.concatenate(x) for x in zip(*parts))
         newly_failed = self.alive & ~ok
         self.failed_step[newly_failed] = self.steps_done
         self.alive &= ok
@@ -236,7 +303,7 @@ class Simulator:
         self._read_tips()
         resid = np.where(ok, resid, np.inf)
         return StepResult(self.tip_position.copy(), self.tip_velocity.copy(), self.tip_acceleration.copy(),
-                          ok, iters, resid, status)
+                          ok, iters, resid, status, pen)
 
     @property
     def displacements(self) -> np.ndarray:
@@ -247,34 +314,6 @@ class Simulator:
         tips = [c.tips() for c in self.parts]
         self.tip_position, self.tip_velocity, self.tip_acceleration = tips[0] if len(tips) == 1 else (
             np.concatenate([t[j] for t in tips]) for j in range(3))
-
-    def tip_state(self) -> dict[str, np.ndarray]:
-        """State at the last two nodes of the last evaluation: rotations (B, 2, 3, 3), n, m
-        (B, 2, 3) world frame, q (B, 2, 3) body frame, and the last interval h (B,) [m]."""
-        f64 = np.float64
-        cat = {name: np.concatenate([getattr(c.sh.nodes, name).numpy()[:, -2:].astype(f64) for c in self.parts])
-               for name in ("R", "n", "m", "q")}
-        cat["h"] = self.grid[:, -1] - self.grid[:, -2]
-        return cat
-
-    def tendons(self) -> dict[str, np.ndarray]:
-        """Per rod and tendon (B, K) after the last step (tendon states only): tension_base,
-        tension_end [N], path_length [m], turning [rad] and, with friction, slip: the slip
-        direction that step used (the next one takes it from this step's motion)."""
-        if not self.tables.features.tendons:
-            raise InputError("tendons(): this robot has no tendon states (no displacement control or friction)")
-        td = np.concatenate([c.sh.tendon_table() for c in self.parts])
-        out = {"tension_base": td[..., layout.TO_BASE], "tension_end": td[..., layout.TO_END],
-               "path_length": td[..., layout.TO_PATH], "turning": td[..., layout.TO_TURN]}
-        if self.tables.features.friction:
-            out["slip"] = self.last_slip.copy()
-        return out
-
-    def shapes(self) -> tuple[np.ndarray, np.ndarray]:
-        """Current positions (B, N+1, 3) [m] and rotations (B, N+1, 3, 3) along s (frozen rods:
-        their last trial)."""
-        return (np.concatenate([c.sh.nodes.p.numpy().astype(np.float64) for c in self.parts]),
-                np.concatenate([c.sh.nodes.R.numpy().astype(np.float64) for c in self.parts]))
 
     def simulate(self, schedule, steps: int, *, shapes_every: int = 0, progress: bool = False,
                  displacements=None) -> Trajectory:
@@ -340,7 +379,7 @@ class _Recording:
 
     def __init__(self, sim: Simulator, T: int, shapes_every: int):
         B, K, n1 = sim.B, sim.robot.n_tendons, sim.grid.shape[1]
-        require_memory(T * B * (8.0 * (9 + K) + 9) + (T // shapes_every if shapes_every else 0) * B * 96.0
+        require_memory(T * B * (8.0 * (10 + K) + 9) + (T // shapes_every if shapes_every else 0) * B * 96.0
                        * n1, f"steps = {T} for {B} rod(s): the trajectory")
         self.sim, self.shapes_every = sim, shapes_every
         self.tip = np.zeros((T + 1, B, 3))
@@ -352,6 +391,7 @@ class _Recording:
         self.iters = np.zeros((T, B), dtype=np.int32)
         self.resid = np.zeros((T, B))
         self.status = np.zeros((T, B), dtype=np.int32)
+        self.pen = np.zeros((T, B))
         self.shape_steps, self.shapes = [], []
         if shapes_every:
             self.shape_steps.append(0)
@@ -361,6 +401,7 @@ class _Recording:
         """Step i's outcome (and the shapes every ``shapes_every`` steps; its tensions go to ``taus``)."""
         self.tip[i + 1], self.vel[i + 1], self.acc[i + 1] = r.tip_position, r.tip_velocity, r.tip_acceleration
         self.conv[i], self.iters[i], self.resid[i], self.status[i] = r.converged, r.iterations, r.residual, r.status
+        self.pen[i] = r.penetration
         if self.shapes_every and (i + 1) % self.shapes_every == 0:
             self.shape_steps.append(i + 1)
             self.shapes.append(self.sim.shapes())
@@ -371,7 +412,7 @@ class _Recording:
         B, n1, T = sim.B, sim.grid.shape[1], len(self.taus)
         return Trajectory(time=sim.dt * np.arange(T + 1), tip_position=self.tip, tip_velocity=self.vel,
                           tip_acceleration=self.acc, tensions=self.taus, converged=self.conv, iterations=self.iters,
-                          residual=self.resid, status=self.status, failed_step=sim.failed_step.copy(),
+                          residual=self.resid, status=self.status, penetration=self.pen, failed_step=sim.failed_step.copy(),
                           shape_steps=np.array(self.shape_steps, dtype=np.int32),
                           positions=np.array([p for p, _ in shapes]) if shapes else np.zeros((0, B, n1, 3)),
                           rotations=np.array([R for _, R in shapes]) if shapes else np.zeros((0, B, n1, 3, 3)))
@@ -379,10 +420,12 @@ class _Recording:
 
 class _Chunk:
     """The rods lo:hi of a Simulator: their shooting problem and, on the device, the BDF-alpha
-    history of every slot, the previous solution, the tip kinematics and the step outcome."""
+    history of every slot, the previous solution, the tip kinematics and the step outcome; with
+    obstacles their Contact, at the static start's stiffness (``stiffness`` (b, O)) and stiffened
+    further in any step that presses a rod in beyond the tolerance."""
 
     def __init__(self, sim: Simulator, tables: Tables, lo: int, hi: int, tau: np.ndarray, x0: np.ndarray,
-                 tip: np.ndarray, avail: np.ndarray | None):
+                 tip: np.ndarray, avail: np.ndarray | None, stiffness: np.ndarray | None):
         o = sim.opts
         self.sim = sim
         self.sh = sh = Shooting(tables, lo, hi, tau, precision=o.precision, integrator=o.integrator,
@@ -408,10 +451,18 @@ class _Chunk:
         self.newton = dict(tol=o.tolerance, max_iter=o.max_iter, max_step=o.max_step,
                            broyden=o.jacobian == "broyden")
         self._end = Replay(self.hk.end_step, sh.b, sim.dev)
+        self.contact = next(iter(chunk_contacts(sim.robot, tables, [sh], [(lo, hi)])), None)
+        if self.contact:  # the rigid obstacles as stiff as the start's solve left them (else at their base)
+            self.contact.reset(self.contact.goal_stiffness() if stiffness is None else stiffness)
         sh.evaluate(x0)  # c0 = 0, empty history: the static slots
         wp.copy(sh.newton.x, sh.x_in)
         self._end_step(at_rest=True)
         sh.step.c0 = sh.dev.wdtype(sim.coef[0])
+
+    def inside(self) -> np.ndarray:
+        """(b,) bool: the last evaluated shapes penetrate an obstacle beyond the tolerance."""
+        status = self.contact.results(self.sim.opts.contact_tolerance, np.zeros(self.sh.b, dtype=np.int32))["status"]
+        return status != 0
 
     def _end_step(self, at_rest: bool = False) -> None:
         sh, out = self.sh, self.sh.nodes
@@ -427,9 +478,12 @@ class _Chunk:
         """One time step of the live rods (``alive`` (b,)) under tau (b, K) [N] (tau_prev: the last
         step's) and avail (b, K) [m] or None, with friction's slip (b, K) or None: Newton from the
         extrapolated start (``first``: a fresh Jacobian), the slack set settled, the failed rods
-        retried, the history advanced. Returns (converged, status, iterations, residual) (b,) each."""
+        retried, contact stiffened where it must be, the history advanced. Returns (converged,
+        status, iterations, residual, penetration) (b,) each."""
         sh, newton = self.sh, self.newton
         sh.set_command(tau, avail)
+        if self.contact:
+            self.contact.restore()
         if slip is not None:
             sh.set_memory(slip, None)
         sh.solve(self.x_start, mask=None if alive.all() else alive, fresh_jacobian=first, **newton)
@@ -438,11 +492,18 @@ class _Chunk:
         failed = alive & ~sh.converged()
         if failed.any():
             self._retry(failed, tau, tau_prev, avail)
-        status = sh.status()
+        pen = np.zeros(sh.b)
+        if self.contact:
+            tol = self.sim.opts.contact_tolerance
+            self.contact.stiffen(tol, self.sim.opts.contact_steps, newton, alive)
+            found = self.contact.results(tol, sh.status())
+            status, pen = found["status"], penetration(found["contact_gap"]).max(axis=1)
+        else:
+            status = sh.status()
         ok = ((status & layout.CONVERGED) != 0) & alive
         sh.host(self.ok).put(ok)
         self._end_step()
-        return ok, status, sh.host(sh.newton.iters).get(), sh.host(sh.newton.resnorm).get(np.float64)
+        return ok, status, sh.host(sh.newton.iters).get(), sh.host(sh.newton.resnorm).get(np.float64), pen
 
     def _retry(self, failed: np.ndarray, tau: np.ndarray, tau_prev: np.ndarray, avail: np.ndarray | None) -> None:
         """The rods ``failed`` (b,) of this step solved again: a homotopy in the tension increment,
@@ -452,6 +513,10 @@ class _Chunk:
         # A large tension change in one step: reach it by a homotopy in the tension increment,
         # each sub-problem from the last (same time step, same history).
         failed = retry(sh, tension_increment(sh, tau_prev, tau), failed, self.x_prev, newton, o.continuation)
+        if failed.any() and self.contact:
+            # A stiff contact struck within one step: reached from a soft one, stiffened back.
+            sh.set_command(tau, avail)
+            failed = self.contact.soften(failed, self.x_prev, newton)
         if failed.any():
             # A lightly damped rod that moves fast: single shooting amplifies start errors, so
             # the step is reached from a heavily damped copy of itself, which hardly moves from

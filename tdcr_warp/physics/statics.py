@@ -14,6 +14,7 @@ import functools
 import threading
 import weakref
 from collections import OrderedDict
+from contextlib import nullcontext
 from dataclasses import asdict, dataclass, field, fields, replace
 
 import numpy as np
@@ -399,10 +400,11 @@ class StaticProblem:
         if contact:
             res |= contact.results(self.opts.contact_tolerance, res["status"])
         if job.linear or job.stability != "off":
-            res |= self.assessor.assess(sh, lo, hi, job.tau[lo:hi], taut, res, job.ptables, job.linear, job.stability)
+            rods = (sh, lo, hi, job.tau[lo:hi], taut)
+            with contact.near_only(res["contact_gap"]) if contact else nullcontext():  # probes: double steps
+                res |= self.assessor.assess(*rods, res, job.ptables, job.linear, job.stability)
             if job.stability == "stable":
-                res = self.assessor.stable_branch(sh, lo, hi, job.tau[lo:hi], taut, res, job.ptables, job.linear,
-                                                  newton, self.disp, self.j_of)
+                res = self.assessor.stable_branch(*rods, res, job.ptables, job.linear, newton, self.disp, self.j_of)
         return res
 
 
@@ -525,9 +527,7 @@ def _solution(tables: Tables, opts: StaticOptions, out: dict, job: _Job, paramet
     x = out.pop("x")
     out["base_wrench"] = x[:, :6] * tables.scale_rows(B)[:, :6]
     if tables.features.tip:
-        first, basis = 6 + tables.features.displaced, tables.tipc[:, layout.TC_BASIS:layout.TC_BASIS + 9].reshape(-1, 3, 3)
-        lam = x[:, first:] * tables.scale_rows(B)[:, first:]
-        out["tip_reaction"] = np.einsum("bi,bij->bj", lam, np.broadcast_to(basis[:, :lam.shape[1]], (B, lam.shape[1], 3)))
+        out["tip_reaction"] = tables.tip_reaction(x)
     s = np.broadcast_to(tables.grid, (B, tables.grid.shape[1])).astype(np.float64)
     tendon = tendon_results(tables, out, x, job.tau, job.slip, job.profile is not None)
     if job.linear:
