@@ -215,7 +215,7 @@ def test_missing_file_and_subprocess_exit_status(tmp_path, capsys):
 
 
 def test_control_examples(tmp_path):
-    for name in ("our_control", "seed_control"):
+    for name in ("our_control", "seed_control", "wall_control"):
         out = tmp_path / name
         assert main(["control", str(EXAMPLES / f"{name}.toml"), "--out", str(out), "--quiet", "--steps", "30",
                      "--nodes", "20"]) == 0
@@ -230,6 +230,20 @@ def test_control_examples(tmp_path):
         assert_documented(res, res["settings"], res["metrics"], run.files)
         for png in ("control_tip.png", "control_tension.png", "control_error_phase.png"):
             assert (out / png).stat().st_size > 1000
+
+
+def test_wall_control_example(tmp_path):
+    """examples/wall_control.toml: the tip driven toward a target behind a rigid wall stops on the
+    wall (within the contact tolerance, 0.01 radii) and no further; the scene's obstacle is drawn."""
+    out = tmp_path / "wall"
+    assert main(["control", str(EXAMPLES / "wall_control.toml"), "--out", str(out), "--quiet", "--nodes", "20"]) == 0
+    res = json.loads((out / "metrics.json").read_text())
+    run = np.load(out / "control.npz")
+    wall = 0.016 - 1e-3  # the plane less the rod's radius
+    assert res["metrics"]["max_penetration"][0] <= 1e-5 and run["penetration"].max() <= 1e-5
+    assert run["tip_position"][:, 0, 0].max() <= wall + 1e-5
+    assert abs(run["tip_position"][-1, 0, 0] - wall) < 1e-5  # pressed on the wall
+    assert res["metrics"]["final_error"][0] > 0.01  # the target stays out of reach
 
 
 def test_version(capsys):

@@ -464,7 +464,8 @@ def control_metrics(run: ControlRun, tension_max: np.ndarray, band: float = 5e-4
     mean tension [N]; for tracking, the largest error over the second half of the run
     ``max_error`` [m] and the ``lag`` [s]: the delay of the desired path (a whole number of steps,
     at most a quarter of the run) that best matches the tip over the second half (0 for a fixed
-    target)."""
+    target); ``max_penetration`` [m]: the deepest any node sank into an obstacle over the run (0
+    without obstacles)."""
     err = np.linalg.norm(run.error, axis=2)  # (T+1, B)
     T = err.shape[0] - 1
     outside = err > band
@@ -489,13 +490,14 @@ def control_metrics(run: ControlRun, tension_max: np.ndarray, band: float = 5e-4
     return {"final_error": err[-1], "rms_error": np.sqrt((err[1:] ** 2).mean(axis=0)),
             "max_error": err[half].max(axis=0), "lag": lag, "settling_time": settle,
             "overshoot": overshoot, "chatter": chatter, "reversal_fraction": flips, "tension_rate": rate, "saturation_fraction": sat,
-            "peak_tension": run.tensions.max(axis=(0, 2)), "mean_tension": run.tensions.mean(axis=0)}
+            "peak_tension": run.tensions.max(axis=(0, 2)), "mean_tension": run.tensions.mean(axis=0),
+            "max_penetration": run.penetration.max(axis=0) if run.penetration.size else np.zeros(err.shape[1])}
 
 
 # The unit of each control_metrics entry ("1": a fraction of the steps; tension_rate is per step).
 METRIC_UNITS = {"final_error": "m", "rms_error": "m", "max_error": "m", "lag": "s", "settling_time": "s", "overshoot": "m", "chatter": "N",
                 "reversal_fraction": "1", "tension_rate": "N", "saturation_fraction": "1", "peak_tension": "N",
-                "mean_tension": "N"}
+                "mean_tension": "N", "max_penetration": "m"}
 
 
 def static_target(robot: Robot, tensions, **kw) -> np.ndarray:
