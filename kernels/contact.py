@@ -182,9 +182,12 @@ def make_contact(dtype, dynamic: bool):
 @functools.cache
 def make_contact_kernel(dtype, dynamic: bool = False):
     """The kernel ``contact_nodes``: at every node of solved shapes (positions ``pos``) the
-    contact force [N] and the gap to each obstacle [m] (outputs; compiled only for scenes with
-    obstacles). In dynamics the force is damped by the nodes' velocities R q (``rot`` and the
-    body-frame ``vel``; statics ignores both)."""
+    contact force [N], the gap to each obstacle [m] and the gap where that obstacle's stiffness
+    holds the node (``pressing``; FAR where its damping takes half the elastic force or more: in
+    dynamics a node leaving the surface at 1 / (2 damping) or faster, whose depth its way out
+    sets, not the stiffness; at 1 / damping it carries no force) (outputs; compiled only for
+    scenes with obstacles). In dynamics the force is damped by the nodes' velocities R q (``rot`` and
+    the body-frame ``vel``; statics ignores both, and ``pressing`` is the gap)."""
     vec3 = wp.types.vector(3, dtype)
     mat33 = wp.types.matrix((3, 3), dtype)
     Model = make_structs(dtype, dynamic).Model
@@ -193,7 +196,8 @@ def make_contact_kernel(dtype, dynamic: bool = False):
 
     @wp.kernel
     def contact_nodes(md: Model, pos: wp.array2d(dtype=vec3), rot: wp.array2d(dtype=mat33),
-                      vel: wp.array2d(dtype=vec3), force: wp.array2d(dtype=vec3), gap: wp.array3d(dtype=dtype)):
+                      vel: wp.array2d(dtype=vec3), force: wp.array2d(dtype=vec3), gap: wp.array3d(dtype=dtype),
+                      pressing: wp.array3d(dtype=dtype)):
         b, k = wp.tid()
         p = pos[b, k]
         pt = vec3()
@@ -203,7 +207,12 @@ def make_contact_kernel(dtype, dynamic: bool = False):
         force[b, k] = f
         i = row(b, md.obst)
         for j in range(md.n_obst):
-            d, _n = funcs.surface(md, i, j, p)
-            gap[b, k, j] = d - md.obst[i, j, OB_REACH]
+            d, nrm = funcs.surface(md, i, j, p)
+            g = d - md.obst[i, j, OB_REACH]
+            gap[b, k, j] = g
+            pressing[b, k, j] = g
+            if wp.static(dynamic):
+                if md.obst[i, j, OB_DAMP] * wp.dot(nrm, pt) >= dtype(0.5):
+                    pressing[b, k, j] = dtype(FAR)
 
     return contact_nodes

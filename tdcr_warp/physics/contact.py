@@ -57,6 +57,7 @@ class ContactState:
         self.kernel = make_contact_kernel(sh.dev.wdtype, sh.dynamic)
         self.force = wp.zeros((b, n1), dtype=sh.kern.vec3, device=sh.device)
         self.gap = wp.zeros((b, n1, table.shape[1]), dtype=sh.dev.wdtype, device=sh.device)
+        self.pressing = wp.zeros_like(self.gap)
 
     def reset(self, stiffness: np.ndarray | None) -> None:
         """A cold start: every obstacle SOFT times its stiffness (``settle`` climbs back); a warm
@@ -75,14 +76,17 @@ class ContactState:
         """(b, O) every obstacle's stiffness before any schedule [N/m^2] (rigid ones: their base k0)."""
         return self.start_table[..., layout.OB_STIFF].copy()
 
-    def measure(self) -> tuple[np.ndarray, np.ndarray]:
-        """The contact force (b, N+1, 3) [N] and the gap to each obstacle (b, N+1, O) [m] at the
-        nodes of the last stored shapes."""
+    def measure(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The contact force (b, N+1, 3) [N], the gap to each obstacle (b, N+1, O) [m] at the
+        nodes of the last stored shapes, and the gap where the obstacle can push (b, N+1, O) [m]
+        (statics: the gap; dynamics: FAR at a node leaving at 1 / (2 damping) or faster, whose
+        depth no stiffness sets: the schedule looks at this one, the PENETRATION flag at the gap)."""
         sh, out = self.sh, self.sh.nodes
         vel = out.q if sh.dynamic else out.p  # statics: no velocities (the kernel reads none)
-        wp.launch(self.kernel, dim=(sh.b, sh.n1), inputs=[sh.model, out.p, out.R, vel, self.force, self.gap],
-                  device=sh.device)
-        return self.sh.host(self.force).get(np.float64), self.sh.host(self.gap).get(np.float64)
+        wp.launch(self.kernel, dim=(sh.b, sh.n1), inputs=[sh.model, out.p, out.R, vel, self.force, self.gap,
+                                                          self.pressing], device=sh.device)
+        get = lambda a: sh.host(a).get(np.float64)  # noqa: E731
+        return get(self.force), get(self.gap), get(self.pressing) if sh.dynamic else get(self.gap)
 
     def half_band(self) -> np.ndarray:
         """(b, O) half the width of the law's rounded band, eps / 2 = E I / (2 L^3 k) [m]: a node
@@ -122,7 +126,7 @@ class ContactState:
     def results(self, tolerance: float, status: np.ndarray) -> dict[str, np.ndarray]:
         """What a solve reports of contact, and ``status`` with PENETRATION where a rigid
         obstacle is penetrated beyond the tolerance (or the base is inside one)."""
-        force, gap = self.measure()
+        force, gap, _pressing = self.measure()
         limit = tolerance * self.reach[:, None]
         bad = (((penetration(gap) > limit) | (self.band(gap) > limit)) & self.rigid[None]).any(axis=1)
         bad |= (gap[:, 0] < -limit).any(axis=1)
@@ -181,7 +185,7 @@ class Contact(ContactState):
             return
         iters, shots = sh.counts()
         ok = sh.converged()
-        _f, gap = self.measure()
+        _f, _g, gap = self.measure()
         touching = (gap.min(axis=1) < self.half_band()).any(axis=1)
         quiet = ok & ~touching
         self.table[quiet, :, layout.OB_STIFF] = self.goal[quiet]
@@ -221,7 +225,7 @@ class Contact(ContactState):
         iters, shots = sh.counts()
         limit = tolerance * self.reach[:, None]
         for _ in range(steps):
-            _f, gap = self.measure()
+            _f, _g, gap = self.measure()
             pen, band = penetration(gap), self.band(gap)
             over = ((pen > limit) | (band > limit)) & self.rigid[None] & (sh.converged() & rods)[:, None]
             if not over.any():

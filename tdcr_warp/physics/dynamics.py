@@ -184,8 +184,8 @@ class _Readings:
         if not self.tables.features.contact:
             raise InputError("contact(): this robot has no obstacles")
         found = [c.contact.measure() for c in self.parts]
-        return {"contact_force": np.concatenate([f for f, _ in found]),
-                "contact_gap": np.concatenate([g for _, g in found])}
+        return {"contact_force": np.concatenate([f for f, _, _ in found]),
+                "contact_gap": np.concatenate([g for _, g, _ in found])}
 
     def tip_reaction(self) -> np.ndarray:
         """(B, 3) the force the constrained tip takes after the last step [N] (world frame)."""
