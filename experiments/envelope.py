@@ -16,7 +16,10 @@ dt in [1e-3, 1] s (log-uniform), alpha in [-0.48, 0], Bbt giving a first-mode da
 in [0.01, 1], N in {10, 20, 50}, where the single-shooting amplification
 exp(L (rho A c0^2 / EI)^(1/4) / sqrt 2) < 1e6 (float32: < 1e4) and the tendon compression
 sum(tau) L^2 / EI < 20 (Beck's flutter load of a follower-loaded cantilever).
-Beyond it (measured, failures flagged): zeta in [0, 0.01]; dt down to 1e-5 s (amplification > 1e6).
+Beyond it (measured, failures flagged): zeta in [0, 0.01]; dt down to 1e-5 s (amplification > 1e6), with
+single shooting only (segments = 1) and by default (a rod that single shooting fails is split into
+segments, tdcr_warp/physics/segments.py; rods that need more segments than the grid has intervals
+are counted apart).
 Displacement-control envelope: the statics envelope's rods and loads, every tendon under
 displacement control with a wire compliance c = chi r_off^2 / EI (chi in [0.01, 1], log-uniform)
 and a pretension of up to 20% of the half-turn tension pi EI / (r_off L), commanded with the
@@ -48,6 +51,7 @@ sys.path[:0] = [str(ROOT / "experiments")]
 from _common import metadata, write_report  # noqa: E402
 
 import tdcr_warp as tw  # noqa: E402
+from tdcr_warp.physics.segments import segments_needed  # noqa: E402
 
 NODES = (5, 10, 20, 50, 200, 2000)
 ENVELOPE = dict(bend_max=np.pi, slender=(50.0, 500.0))
@@ -165,9 +169,10 @@ DYN_SMALL_DT = dict(zeta=(0.01, 1.0), dt=(1e-5, 1e-2), amp_min=1e6, amp_max=np.i
 
 
 def run_dynamics(samples: int, rng, *, zeta=(0.01, 1.0), dt=(1e-3, 1.0), amp_min: float = 0.0, amp_max: float = 1e6,
-                 nodes: int = 20, precision: str = "float64") -> dict:
+                 nodes: int = 20, precision: str = "float64", segments: int | None = None) -> dict:
     """5 steps from rest under a tension step for each sampled rod whose single-shooting
-    amplification lies in [amp_min, amp_max) and whose compression is below Beck's flutter load."""
+    amplification lies in [amp_min, amp_max) and whose compression is below Beck's flutter load;
+    ``segments``: the Simulator's (None: as many as dt needs; 1: single shooting)."""
     s = sample_envelope(samples, rng, bend_max=np.pi / 2)
     rob0 = tw.Robot(**s["robot"])
     sec = rob0.section()
@@ -185,6 +190,7 @@ def run_dynamics(samples: int, rng, *, zeta=(0.01, 1.0), dt=(1e-3, 1.0), amp_min
     # dynamic instability, outside the envelope
     inside = (amp >= np.log(max(amp_min, 1.0))) & (amp < np.log(amp_max)) & (compression < 20.0)
     results = {"inside": int(inside.sum()), "converged": 0, "failed": 0, "skipped_outside": int((~inside).sum()),
+               "beyond_grid": 0, "beyond_grid_converged": 0,
                "nodes": nodes, "precision": precision, "reasons": {}, "failures": []}
     for b in np.flatnonzero(inside):
         rob = tw.Robot(length=L[b], youngs_modulus=rob0.youngs_modulus[b], radius=rob0.radius[b], density=7800.0,
@@ -194,16 +200,20 @@ def run_dynamics(samples: int, rng, *, zeta=(0.01, 1.0), dt=(1e-3, 1.0), amp_min
         with warnings.catch_warnings():  # the small-dt row is beyond the single-shooting limit on purpose
             warnings.simplefilter("ignore")
             sim = tw.Simulator(rob, np.zeros((1, K_MAX)), dt=float(dt[b]), alpha=float(alpha[b]), nodes=nodes,
-                               precision=precision)
-        tr = sim.simulate(np.tile(s["tensions"][b], (5, 1)), 5)
+                               precision=precision, segments=segments)
+        with np.errstate(over="ignore", invalid="ignore"):
+            tr = sim.simulate(np.tile(s["tensions"][b], (5, 1)), 5)
         results["converged" if tr.converged.all() else "failed"] += 1
+        if segments is None and segments_needed(rob, precision, float(dt[b]), c0[b] * dt[b]) > nodes:
+            results["beyond_grid"] += 1  # more segments needed than the grid has intervals
+            results["beyond_grid_converged"] += int(tr.converged.all())
         if not tr.converged.all():
             f = int(tr.failed_step[0])
             reason = tw.describe_status(int(tr.status[f, 0]))
             results["reasons"][reason] = results["reasons"].get(reason, 0) + 1
             results["failures"].append(dict(step=f, status=int(tr.status[f, 0]), dt=float(dt[b]),
                                             alpha=float(alpha[b]), amplification_log10=float(amp[b] / np.log(10)),
-                                            zeta=float(zeta[b]), theta=float(s["theta"][b]),
+                                            zeta=float(zeta[b]), theta=float(s["theta"][b]), segments=sim.segments,
                                             slenderness=float(L[b] / rob0.radius[b]),
                                             rod=dict(length=float(L[b]), youngs_modulus=float(rob0.youngs_modulus[b]),
                                                      radius=float(rob0.radius[b]),
@@ -255,16 +265,21 @@ def main(argv=None) -> int:
     m = 8 if args.smoke else args.dynamic_samples
     dyn = []
     # (name, region, nodes, precision, share of the dynamic sample count)
-    for name, region, nodes, precision, share in (
-            ("envelope", DYN_ENVELOPE, 20, "float64", 1.0), ("envelope", DYN_ENVELOPE, 10, "float64", 0.1),
-            ("envelope", DYN_ENVELOPE, 50, "float64", 0.1), ("envelope float32", DYN_FLOAT32, 20, "float32", 0.1),
-            ("beyond: zeta < 0.01", DYN_UNDAMPED, 20, "float64", 0.1),
-            ("beyond: small dt", DYN_SMALL_DT, 20, "float64", 0.05)):
-        row = run_dynamics(max(8, int(m * share)), rng, nodes=nodes, precision=precision, **region)
+    # (name, region, nodes, precision, share of the dynamic sample count, segments: None splits a rod that single
+    # shooting fails, 1 never does)
+    for name, region, nodes, precision, share, segments in (
+            ("envelope", DYN_ENVELOPE, 20, "float64", 1.0, None), ("envelope", DYN_ENVELOPE, 10, "float64", 0.1, None),
+            ("envelope", DYN_ENVELOPE, 50, "float64", 0.1, None),
+            ("envelope float32", DYN_FLOAT32, 20, "float32", 0.1, None),
+            ("beyond: zeta < 0.01", DYN_UNDAMPED, 20, "float64", 0.1, None),
+            ("beyond: small dt, single shooting", DYN_SMALL_DT, 20, "float64", 0.05, 1),
+            ("beyond: small dt", DYN_SMALL_DT, 20, "float64", 0.05, None)):
+        row = run_dynamics(max(8, int(m * share)), rng, nodes=nodes, precision=precision, segments=segments, **region)
         row.update(region=name, settings={k: list(v) if isinstance(v, tuple) else v for k, v in region.items()})
         dyn.append(row)
         print(f"dynamics {name:20s} {precision} N={nodes:3d}: {row['converged']} of {row['inside']} converged every "
-              f"step ({row['rate']:.3%}; {row['skipped_outside']} sampled outside), failures: {row['reasons']}")
+              f"step ({row['rate']:.3%}; {row['skipped_outside']} sampled outside), failures: {row['reasons']}; "
+              f"{row['beyond_grid']} needed more segments than intervals ({row['beyond_grid_converged']} converged)")
     write_report(args.out, {"meta": metadata(args.device), "statics": rows, "displacement": disp, "dynamics": dyn})
     return 0
 

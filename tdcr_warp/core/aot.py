@@ -23,7 +23,7 @@ from typing import NamedTuple
 
 from tdcr_warp.kernels.variants import ALL, INTEGRATORS, MODELS, RODS, Features
 
-__all__ = ["Variant", "compile_variant", "covering_variants", "all_variants", "group", "main"]
+__all__ = ["Variant", "compile_variant", "covering_variants", "all_variants", "group", "main", "segmented"]
 
 PRECISIONS = ("float64", "float32")
 NONE = Features(gravity=False, point_loads=False, helix=False, drag=False, kinks=False)
@@ -78,6 +78,7 @@ def _modules(v: Variant):
 
     from tdcr_warp.kernels.contact import make_contact_kernel
     from tdcr_warp.kernels.history import make_history_kernels
+    from tdcr_warp.kernels.segments import make_segment_kernel
     from tdcr_warp.kernels.shooting import make_shooting_kernels
 
     dtype = wp.float64 if v.precision == "float64" else wp.float32
@@ -87,6 +88,8 @@ def _modules(v: Variant):
         mods.append(make_history_kernels(dtype).end_step.module)
     if v.features.contact:  # the contact outputs (one module for every precision and variant)
         mods.append(make_contact_kernel(dtype, v.dynamic).module)
+    if segmented(v):  # multiple shooting (one module likewise)
+        mods.append(make_segment_kernel(dtype, v.integrator, v.model, v.dynamic, v.rod, v.features).module)
     return mods
 
 
@@ -103,8 +106,13 @@ def compile_variant(v: Variant, arch: int, out_dir: str) -> list[tuple[str, floa
     return done
 
 
+def segmented(v: Variant) -> bool:
+    """Whether the variant's dynamics may split a rod into segments (tdcr_warp/physics/segments.py)."""
+    return v.dynamic and not (v.features.tendons or v.features.tip or v.features.contact) and v.model != "disks"
+
+
 def group(module: str) -> str:
-    """A built module's kind: fused, probes, evaluate, history or contact."""
+    """A built module's kind: fused, probes, evaluate, history, contact or segments."""
     return module.split("_")[2] if module.startswith("tdcr_warp_") else module.rsplit(".", 1)[-1]
 
 

@@ -159,7 +159,8 @@ class Shooting:
         self.dev = Device(device, precision)
         self.device = device
         self.dynamic = dynamic
-        k = self.kern = make_shooting_kernels(self.dev.wdtype, integrator, model, dynamic, rod, tables.features)
+        self.variant = (self.dev.wdtype, integrator, model, dynamic, rod, tables.features)  # the kernels'
+        k = self.kern = make_shooting_kernels(*self.variant)
         self.b = b = hi - lo
         self.tendon_len = np.broadcast_to(tables.rows("tendon_len", lo, hi), (b, tables.tendon_len.shape[1]))
         self.n1 = n1 = tables.grid.shape[1]

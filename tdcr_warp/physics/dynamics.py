@@ -27,6 +27,7 @@ from tdcr_warp.kernels.history import make_history_kernels
 from tdcr_warp.model.options import StaticOptions
 from tdcr_warp.model.robot import InputError, Robot, check_command, check_tensions, real_array, require_memory
 from tdcr_warp.physics.contact import chunk_contacts, penetration
+from tdcr_warp.physics.segments import Segments, segments_needed, single_shooting_warning
 from tdcr_warp.physics.slack import available_lengths, settle_slack
 from tdcr_warp.physics.statics import StaticSolution, reference_lengths, solve_static
 
@@ -95,38 +96,6 @@ def _check_stepping(dt, alpha) -> None:
         raise InputError(f"dt must be a positive number of seconds, got {dt!r}")
     if not (isinstance(alpha, (int, float)) and -0.5 < alpha <= 0.0):
         raise InputError(f"alpha must be in (-0.5, 0], got {alpha!r}")
-
-
-def _warn_single_shooting(robot: Robot, precision: str, dt: float, c0: float) -> None:
-    """Warn where dt is below what single shooting resolves: a start error grows along the rod
-    by exp(L (rho A c0^2 / (EI + c0 Bbt))^(1/4) / sqrt 2), beyond the precision's reach past 1e6
-    (float64) or 1e4 (float32) (docs/accuracy.md, robustness). Steps there may fail (flagged).
-    c0: BDF-alpha's c0 at dt [1/s]; the warning points at the Simulator's caller."""
-    sec = robot.section()
-    limit = math.log(1e6 if precision == "float64" else 1e4)
-    ei = sec["kbt"][:, :2].min(axis=1)
-    bbt = robot.damping_bending[:, :2].min(axis=1)
-    rho_a = robot.density * sec["area"]
-    c_ratio = c0 * dt  # c0 = c_ratio / dt
-
-    def growth(dt):  # inf where the numbers overflow (absurdly small dt)
-        c0 = np.float64(c_ratio) / dt
-        with np.errstate(over="ignore", invalid="ignore"):
-            g = robot.length * (rho_a * c0**2 / (ei + c0 * bbt)) ** 0.25 / math.sqrt(2)
-        return np.where(np.isfinite(g), g, np.inf)
-
-    g = np.atleast_1d(growth(dt))
-    worst = int(np.argmax(g))
-    if g[worst] <= limit:
-        return
-    lo, hi = math.log(dt), max(math.log(dt), math.log(1e3))  # growth falls as dt grows
-    for _ in range(100):  # bisect log dt
-        mid = 0.5 * (lo + hi)
-        lo, hi = (mid, hi) if np.max(growth(math.exp(mid))) > limit else (lo, mid)
-    amp = f"1e{g[worst] / math.log(10):.0f}" if math.isfinite(g[worst]) else "beyond float64"
-    warnings.warn(f"dt = {dt:g} s is below the single-shooting limit of {int(np.sum(g > limit))} rod(s) "
-                  f"(rod {worst}: amplification {amp}; dt >= {math.exp(hi):.1e} s stays inside): steps may "
-                  "fail, and are then flagged", stacklevel=3)
 
 
 def _static_start(robot: Robot, tau: np.ndarray, displacements, initial: StaticSolution | None, opts: StaticOptions,
@@ -225,6 +194,11 @@ class Simulator(_Readings):
     shortening: sliding toward the motor, +1); the static start uses slip +1. Below
     ``slip_speed`` [m/s] friction fades like viscous friction: dynamics has no static stick.
 
+    segments: multiple shooting (tdcr_warp/physics/segments.py: each rod split into that many
+    segments in every step; 1: never); None (default): single shooting, and where dt is beyond
+    its comfortable reach a rod whose step fails it (and its retries) is split into as many
+    segments as dt needs from then on (not yet with tendon states, a held tip or obstacles).
+
     Obstacles and a held tip act in every step as in statics (docs/contact.md, "In motion"): the
     contact damped by each obstacle's ``damping``, a rigid one stiffened where a step presses a rod
     in beyond ``contact_tolerance`` radii (else PENETRATION in that step's status); ``contact()``,
@@ -234,13 +208,12 @@ class Simulator(_Readings):
     def __init__(self, robot: Robot, tensions=None, *, dt: float, alpha: float = 0.0,
                  options: StaticOptions | None = None, device: str | None = None,
                  initial: StaticSolution | None = None, displacements=None, slip_speed: float = 1e-3,
-                 **overrides):
+                 segments: int | None = None, **overrides):
         _check_stepping(dt, alpha)
         self.robot = robot
         self.opts = (options or StaticOptions()).override(**overrides)
         self.dt, self.alpha = float(dt), float(alpha)
         self.coef = bdf_alpha_coefficients(self.dt, self.alpha)
-        _warn_single_shooting(robot, self.opts.precision, self.dt, self.coef[0])
         if not (isinstance(slip_speed, (int, float)) and math.isfinite(slip_speed) and slip_speed > 0):
             raise InputError(f"slip_speed must be a positive speed [m/s], got {slip_speed!r}")
         self.slip_speed = float(slip_speed)
@@ -252,6 +225,7 @@ class Simulator(_Readings):
             raise InputError(f"dynamics needs solver model 'coupled' or 'point', got {self.opts.model!r} (the disk "
                              "model is static for now)")
         static, self.tables, x0 = _static_start(robot, tau, displacements, initial, self.opts, self.dev)
+        self.segments, self.split_all = _segment_count(self, segments), segments is not None
         self.grid = np.broadcast_to(self.tables.grid, (self.B, self.tables.grid.shape[1]))
         self.path = static.tendon_path_length
         self.chunks = split(self.B, self.dev, self.opts.threads)
@@ -335,6 +309,29 @@ class Simulator(_Readings):
         if bar:
             bar.close()
         return rec.trajectory()
+
+
+def _segment_count(sim: Simulator, segments: int | None) -> int:
+    """The segments of multiple shooting (1: none): ``segments``, or (None) as many as dt needs
+    where single shooting is at risk and the variant allows them (no tendon states, held tip
+    or obstacles yet: else 1, warned where dt is beyond single shooting)."""
+    f, n_int = sim.tables.features, sim.tables.grid.shape[1] - 1
+    allowed = not (f.tendons or f.tip or f.contact)
+    if segments is None:
+        need = segments_needed(sim.robot, sim.opts.precision, sim.dt, sim.coef[0] * sim.dt)
+        segments = min(need, n_int) if allowed and need > 1 else 1
+        if allowed and need > n_int:
+            warnings.warn(f"dt = {sim.dt:g} s needs {need} segments, more than the grid's {n_int} intervals: "
+                          "raise nodes", stacklevel=3)
+    if not (isinstance(segments, int) and 1 <= segments <= n_int):
+        raise InputError(f"segments must be an integer from 1 to the interval count {n_int}, got {segments!r}")
+    if segments > 1 and not allowed:
+        raise InputError("segments > 1 (multiple shooting) needs a robot without displacement control, friction, "
+                         "a constrained tip or obstacles (not built yet)")
+    warning = single_shooting_warning(sim.robot, sim.opts.precision, sim.dt, sim.coef[0] * sim.dt)
+    if segments == 1 and warning:
+        warnings.warn(warning, stacklevel=3)
+    return segments
 
 
 def _schedule(values, steps: int, name: str, B: int, K: int):
@@ -456,6 +453,11 @@ class _Chunk:
             self.contact.reset(self.contact.goal_stiffness() if stiffness is None else stiffness)
         sh.evaluate(x0)  # c0 = 0, empty history: the static slots
         wp.copy(sh.newton.x, sh.x_in)
+        self.seg = None  # segments = None: a rod is split once single shooting fails it, then stays split
+        if sim.segments > 1:
+            self.seg = Segments(sh, tables.rows("rod", lo, hi), sim.segments, sim.coef[0])
+            self.seg.from_nodes(sh.nodes, np.ones(sh.b, dtype=bool))
+        self.split = np.full(sh.b, sim.split_all and self.seg is not None)
         self._end_step(at_rest=True)
         sh.step.c0 = sh.dev.wdtype(sim.coef[0])
 
@@ -478,37 +480,59 @@ class _Chunk:
         """One time step of the live rods (``alive`` (b,)) under tau (b, K) [N] (tau_prev: the last
         step's) and avail (b, K) [m] or None, with friction's slip (b, K) or None: Newton from the
         extrapolated start (``first``: a fresh Jacobian), the slack set settled, the failed rods
-        retried, contact stiffened where it must be, the history advanced. Returns (converged,
-        status, iterations, residual, penetration) (b,) each."""
+        retried (then split, where segments are armed; split rods step by multiple shooting),
+        contact stiffened where it must be, the history advanced. Returns (converged, status,
+        iterations, residual, penetration) (b,) each."""
         sh, newton = self.sh, self.newton
         sh.set_command(tau, avail)
         if self.contact:
             self.contact.restore()
         if slip is not None:
             sh.set_memory(slip, None)
-        sh.solve(self.x_start, mask=None if alive.all() else alive, fresh_jacobian=first, **newton)
+        split, single = self.split & alive, alive & ~self.split
+        if single.any():
+            if self.seg:
+                self.seg.from_nodes(sh.nodes, single)  # the last step's shapes: a start if single shooting fails
+            sh.solve(self.x_start, mask=None if single.all() else single, fresh_jacobian=first, **newton)
         if len(self.disp):
             settle_slack(sh, self.taut, self.disp, self.j_of, newton)
-        failed = alive & ~sh.converged()
+        failed = single & ~sh.converged()
         if failed.any():
-            self._retry(failed, tau, tau_prev, avail)
-        pen = np.zeros(sh.b)
+            failed &= self._retry(failed, tau, tau_prev, avail)
+        if failed.any() and self.seg:  # beyond single shooting and its retries: split from now on
+            self.split, split = self.split | failed, split | failed
+        if split.any():
+            self._segmented(split)
+        status, pen = sh.status(), np.zeros(sh.b)
         if self.contact:
             tol = self.sim.opts.contact_tolerance
             self.contact.stiffen(tol, self.sim.opts.contact_steps, newton, alive)
             found = self.contact.results(tol, sh.status())
             status, pen = found["status"], penetration(found["contact_gap"]).max(axis=1)
-        else:
-            status = sh.status()
         ok = ((status & layout.CONVERGED) != 0) & alive
         sh.host(self.ok).put(ok)
         self._end_step()
         return ok, status, sh.host(sh.newton.iters).get(), sh.host(sh.newton.resnorm).get(np.float64), pen
 
-    def _retry(self, failed: np.ndarray, tau: np.ndarray, tau_prev: np.ndarray, avail: np.ndarray | None) -> None:
+    def _segmented(self, rods: np.ndarray) -> None:
+        """The step of ``rods`` (b,) by multiple shooting (its Newton on the host, the segments on
+        the device); their base wrench (the single-shooting unknowns, which the history's end of
+        step extrapolates) and outcome put beside the other rods'."""
+        sh = self.sh
+        ok, limited, iters, size = self.seg.solve(rods, self.newton["tol"], self.newton["max_iter"])
+        status = np.where(ok, layout.CONVERGED, np.where(np.isfinite(size), layout.MAX_ITER, layout.NONFINITE))
+        status = np.where(limited, status | layout.PRECISION_LIMITED, status)
+        for arr, values in ((sh.newton.status, status), (sh.newton.x, self.seg.z[:, :6]), (sh.newton.iters, iters),
+                            (sh.newton.resnorm, size)):
+            mirror = sh.host(arr)
+            merged = mirror.get(np.float64).copy()
+            merged[rods] = values[rods]
+            mirror.put(merged)
+
+    def _retry(self, failed: np.ndarray, tau: np.ndarray, tau_prev: np.ndarray, avail: np.ndarray | None) -> np.ndarray:
         """The rods ``failed`` (b,) of this step solved again: a homotopy in the tension increment,
         then from a heavily damped copy of themselves, then by plain Newton; each only for the rods
-        the one before left failing."""
+        the one before left failing. Returns the rods still failing."""
         sh, o, newton = self.sh, self.sim.opts, self.newton
         # A large tension change in one step: reach it by a homotopy in the tension increment,
         # each sub-problem from the last (same time step, same history).
@@ -525,6 +549,7 @@ class _Chunk:
             failed = self._damping_homotopy(failed)
         if failed.any():  # last resort: plain Newton (a fresh Jacobian at every iterate) from x(i)
             sh.solve(self.x_prev, mask=failed, **(newton | dict(broyden=False, max_iter=2 * o.max_iter)))
+        return failed & ~sh.converged()
 
     def _damping_homotopy(self, failed: np.ndarray) -> np.ndarray:
         """The failed rods reached from heavily damped copies of themselves: s K / c0 added to

@@ -1,0 +1,303 @@
+"""Multiple shooting of one chunk of rods (kernels/segments.py integrates the segments).
+
+The rod is split at nodes into M segments. The unknowns of a rod, scaled to O(1) like single
+shooting's, are the base wrench [n(0) L^2 / EI, m(0) L / EI] and, at the start of each later
+segment j, its state: p / L, a rotation vector theta (R = Rref_j exp(theta^), Rref_j updated
+after every Newton step so theta stays small), n L^2 / EI, m L / EI and in dynamics q / (L c0), w
+/ c0. The residuals are the gaps between each segment's end and the next one's start, scaled the
+same way (the rotation's as the rotation vector of R_start^T R_end), then the tip residual of
+single shooting; L |r| < tol is convergence, the same measure as single shooting's.
+
+Newton with a Jacobian of central differences at every iterate (2 integrations of a segment per
+unknown: about 2 nu / M rod integrations), solved per rod (dense; its block-bidiagonal structure
+is not exploited yet), with a backtracking line search on |r|. As in single shooting, a step
+from that Jacobian shorter than 1e-12 |z| (float32: 1e-5) means z is exact to working precision
+and the residual at its round-off floor: converged, PRECISION_LIMITED, if L |r| < 100 tol; so is
+a point within 100 tol from which no step along a fresh Newton direction lowers |r| (small dt puts the floor of L |r|
+near 2e-10 m on the report's robot, where the axial forces at the segments' starts are fixed only
+to ~1e-10 of their scale: 1 / EA is small).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import warp as wp
+
+from tdcr_warp.core.solver import Shooting
+from tdcr_warp.kernels import layout
+from tdcr_warp.kernels.segments import STATE, make_segment_kernel
+
+__all__ = ["Segments", "growth", "rodrigues", "segments_needed", "single_shooting_warning"]
+
+PROBE = 1e-6  # the central differences' step, per scaled unknown
+FLOOR = {"float64": 1e-12, "float32": 1e-5}  # a Newton step this short (relative to z): round-off
+STUCK = 100.0  # no decrease of |r| along a fresh Newton step within this many tol: round-off
+HALVINGS = 12  # the line search's
+
+
+SINGLE_REACH = {"float64": 1e6, "float32": 1e4}  # the amplification of a start error a precision resolves
+SWITCH_REACH = {"float64": 1e3, "float32": 1e2}  # beyond it, segments (measured: the report's damped robot fails
+# single shooting at an amplification of e^9.1 at dt = 4e-5 s, where its shear waves lead; e^7.2 converges)
+SEGMENT_REACH = {"float64": 30.0, "float32": 10.0}  # what multiple shooting allows a segment (measured: fewer, larger segments stall at round-off)
+
+
+def growth(robot, c_ratio: float, dt: float) -> np.ndarray:
+    """(B,) ln of the amplification of a start error along each whole rod in a time step dt [s]
+    (BDF-alpha's c0 = c_ratio / dt): the largest of the bending modes', L (rho A c0^2 / (E I + c0
+    Bbt))^(1/4) / sqrt 2, and the shear and extension waves', L c0 (rho A / (K + c0 Bse))^(1/2)
+    (K: G A, G A, E A); inf where the numbers overflow."""
+    sec = robot.section()
+    c0 = np.float64(c_ratio) / dt
+    rho_a = robot.density * sec["area"]
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        bend = (rho_a[:, None] * c0**2 / (sec["kbt"][:, :2] + c0 * robot.damping_bending[:, :2])).max(axis=1) ** 0.25
+        bend = bend / math.sqrt(2)
+        wave = np.sqrt((rho_a[:, None] * c0**2 / (sec["kse"] + c0 * robot.damping_shear)).max(axis=1))
+        g = robot.length * np.maximum(bend, wave)
+    return np.where(np.isfinite(g), g, np.inf)
+
+
+def segments_needed(robot, precision: str, dt: float, c_ratio: float) -> int:
+    """The segments that bring every rod's growth per segment within SEGMENT_REACH (1: single
+    shooting resolves dt, its growth within SWITCH_REACH)."""
+    g = float(np.max(growth(robot, c_ratio, dt)))
+    if g <= math.log(SWITCH_REACH[precision]):
+        return 1
+    return int(math.ceil(g / math.log(SEGMENT_REACH[precision]))) if math.isfinite(g) else 1 << 30
+
+
+def single_shooting_warning(robot, precision: str, dt: float, c_ratio: float) -> str | None:
+    """Why single shooting may fail at dt (a start error amplified beyond SINGLE_REACH, with the
+    dt that stays inside), or None (docs/accuracy.md, robustness)."""
+    limit = math.log(SINGLE_REACH[precision])
+    g = growth(robot, c_ratio, dt)
+    worst = int(np.argmax(g))
+    if g[worst] <= limit:
+        return None
+    lo, hi = math.log(dt), max(math.log(dt), math.log(1e3))  # growth falls as dt grows
+    for _ in range(100):  # bisect log dt
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if np.max(growth(robot, c_ratio, math.exp(mid))) > limit else (lo, mid)
+    amp = f"1e{g[worst] / math.log(10):.0f}" if math.isfinite(g[worst]) else "beyond float64"
+    return (f"dt = {dt:g} s is below the single-shooting limit of {int(np.sum(g > limit))} rod(s) (rod {worst}: "
+            f"amplification {amp}; dt >= {math.exp(hi):.1e} s stays inside): steps may fail, and are then flagged "
+            "(segments = None splits a rod into as many as it needs, where its variant allows)")
+
+
+def rodrigues(theta: np.ndarray) -> np.ndarray:
+    """(..., 3, 3) exp(theta^) of rotation vectors theta (..., 3)."""
+    a = np.linalg.norm(theta, axis=-1)[..., None, None]
+    k = np.zeros(theta.shape[:-1] + (3, 3))
+    k[..., 0, 1], k[..., 0, 2], k[..., 1, 2] = -theta[..., 2], theta[..., 1], -theta[..., 0]
+    k = k - np.swapaxes(k, -1, -2)
+    small = a < 1e-8
+    s = np.where(small, 1.0 - a**2 / 6, np.sin(a) / np.where(small, 1.0, a))
+    c = np.where(small, 0.5 - a**2 / 24, (1 - np.cos(a)) / np.where(small, 1.0, a * a))
+    return np.eye(3) + s * k + c * (k @ k)
+
+
+def _vee(a: np.ndarray) -> np.ndarray:
+    """The rotation vector of a near-identity rotation a (..., 3, 3) (its skew part's)."""
+    return 0.5 * np.stack([a[..., 2, 1] - a[..., 1, 2], a[..., 0, 2] - a[..., 2, 0], a[..., 1, 0] - a[..., 0, 1]],
+                          axis=-1)
+
+
+def _equilibrated_solve(J: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+    """(b, n) the solutions of J x = rhs, each J (b, n, n) scaled to unit largest column and row
+    entries first (its columns span 8 decades at small dt: the velocities' pull on the forces)."""
+    cs = np.abs(J).max(axis=1, keepdims=True)
+    cs[cs == 0] = 1.0
+    Jc = J / cs
+    rs = np.abs(Jc).max(axis=2, keepdims=True)
+    rs[rs == 0] = 1.0
+    return np.linalg.solve(Jc / rs, (rhs / rs[..., 0])[..., None])[..., 0] / cs[:, 0]
+
+
+class SegmentUnknowns:
+    """The unknowns of b rods in ``count`` segments split at the nodes ``bounds``: their scales,
+    the reference rotations, the segments' start states from them and the residual of the gaps;
+    rod (b, ROD_WIDTH) the rods' rows, ``c0`` [1/s]: BDF-alpha's (the velocities' scale)."""
+
+    def __init__(self, rod: np.ndarray, bounds: np.ndarray, c0: float, dynamic: bool):
+        self.b, self.M, self.bounds, self.dynamic = rod.shape[0], len(bounds) - 1, bounds, dynamic
+        L, F, Mo = rod[:, layout.LENGTH], rod[:, layout.FORCE_SCALE], rod[:, layout.MOMENT_SCALE]
+        self.L, ones = L, np.ones(self.b)
+        self.d = 18 if dynamic else 12
+        # the scale of each of a state's d unknowns: p, theta, n, m (, q, w)
+        self.scale = np.stack([L] * 3 + [ones] * 3 + [F] * 3 + [Mo] * 3
+                              + ([L * c0] * 3 + [ones * c0] * 3 if dynamic else []), axis=1)
+        self.base_scale = np.stack([F] * 3 + [Mo] * 3, axis=1)
+        self.nz = 6 + self.d * (self.M - 1)
+        self.Rref = np.tile(np.eye(3), (self.b, self.M - 1, 1, 1))
+        self.z = np.zeros((self.b, self.nz))
+
+    def from_nodes(self, out, rods: np.ndarray) -> None:
+        """The unknowns of ``rods`` (b,) from a stored shape (a Shooting's ``nodes``): a start."""
+        at = self.bounds[:-1]  # the segments' first nodes
+        get = lambda a: a.numpy()[:, at].astype(np.float64)  # noqa: E731
+        p, R, n, m = get(out.p), get(out.R), get(out.n), get(out.m)
+        z = [n[:, 0] / self.base_scale[:, :3], m[:, 0] / self.base_scale[:, 3:]]
+        if self.dynamic:
+            q, w = get(out.q), get(out.w)
+        for j in range(1, self.M):
+            parts = [p[:, j], np.zeros((self.b, 3)), n[:, j], m[:, j]] + ([q[:, j], w[:, j]] if self.dynamic else [])
+            z.append(np.concatenate(parts, axis=1) / self.scale)
+        self.z[rods] = np.concatenate(z, axis=1)[rods]
+        self.Rref[rods] = R[rods, 1:]
+
+    def starts(self, z: np.ndarray) -> np.ndarray:
+        """(b, [C,] M, STATE) every segment's start state from unknowns z (b, [C,] nz) (C: columns
+        of perturbed unknowns)."""
+        zc = z.reshape(self.b, -1, self.nz)
+        C = zc.shape[1]
+        st = np.zeros((self.b, C, self.M, STATE))
+        st[:, :, 0, 3:12] = np.eye(3).ravel()
+        st[:, :, 0, 12:18] = zc[..., :6] * self.base_scale[:, None]
+        y = zc[..., 6:].reshape(self.b, C, self.M - 1, self.d) * self.scale[:, None, None]
+        st[:, :, 1:, 0:3] = y[..., 0:3]
+        st[:, :, 1:, 3:12] = (self.Rref[:, None] @ rodrigues(y[..., 3:6])).reshape(self.b, C, self.M - 1, 9)
+        st[:, :, 1:, 12:18] = y[..., 6:12]
+        if self.dynamic:
+            st[:, :, 1:, 18:24] = y[..., 12:18]
+        return st.reshape(z.shape[:-1] + (self.M, STATE))
+
+    def residual(self, st: np.ndarray, end: np.ndarray, tip: np.ndarray) -> np.ndarray:
+        """(..., nz) the scaled gaps between segment ends ``end`` (..., M, STATE) and the next
+        starts ``st``, then the tip residual ``tip`` (..., 6)."""
+        a, e = st[..., 1:, :], end[..., :-1, :]
+        Ra, Re = a[..., 3:12].reshape(a.shape[:-1] + (3, 3)), e[..., 3:12].reshape(e.shape[:-1] + (3, 3))
+        gap = [e[..., 0:3] - a[..., 0:3], _vee(np.swapaxes(Ra, -1, -2) @ Re), e[..., 12:18] - a[..., 12:18]]
+        if self.dynamic:
+            gap.append(e[..., 18:24] - a[..., 18:24])
+        scale = self.scale.reshape((self.b,) + (1,) * (st.ndim - 3) + (1, self.d))
+        r = np.concatenate(gap, axis=-1) / scale
+        return np.concatenate([r.reshape(r.shape[:-2] + (-1,)), tip], axis=-1)
+
+    def _absorb(self, z: np.ndarray, rods: np.ndarray) -> None:
+        """The rotation vectors of ``rods`` folded into their reference rotations (theta = 0)."""
+        y = z[:, 6:].reshape(self.b, self.M - 1, self.d)
+        theta = y[..., 3:6] * self.scale[:, None, 3:6]
+        R = self.Rref @ rodrigues(theta)
+        self.Rref[rods] = R[rods]
+        y[rods, :, 3:6] = 0.0
+        z[:, 6:] = y.reshape(self.b, -1)
+
+
+class Segments(SegmentUnknowns):
+    """Multiple shooting of the rods of one Shooting ``sh`` in ``count`` segments; ``c0`` [1/s]:
+    BDF-alpha's (0 in statics)."""
+
+    def __init__(self, sh: Shooting, rod: np.ndarray, count: int, c0: float):
+        n_int = sh.n1 - 1
+        if not 2 <= count <= n_int:
+            raise ValueError(f"segments must be between 2 and the interval count {n_int}, got {count}")
+        bounds = np.round(np.linspace(0, n_int, count + 1)).astype(np.int32)
+        super().__init__(np.broadcast_to(rod, (sh.b, rod.shape[1])), bounds, c0, sh.dynamic)
+        self.sh, self.wdt = sh, sh.dev.wdtype
+        self.kernel = make_segment_kernel(*sh.variant)
+        self.bounds_d = wp.array(bounds, dtype=int, device=sh.device)
+        self.rods = wp.ones(sh.b, dtype=int, device=sh.device)  # the rods a launch integrates
+        self._arrays = {}
+
+    def _buffers(self, C: int):
+        if C not in self._arrays:
+            d, wdt = self.sh.device, self.wdt
+            self._arrays[C] = (wp.zeros((self.b, C, STATE), dtype=wdt, device=d), wp.zeros(C, dtype=int, device=d),
+                               wp.zeros((self.b, C, STATE), dtype=wdt, device=d),
+                               wp.zeros((self.b, C, 6), dtype=wdt, device=d))
+        return self._arrays[C]
+
+    def ends(self, st: np.ndarray, seg: np.ndarray, store: bool = False) -> tuple[np.ndarray, np.ndarray]:
+        """Integrate the columns: start states st (b, C, STATE) of segments seg (C,); their end
+        states (b, C, STATE) and tip residuals (b, C, 6) (meaningful for the last segment)."""
+        sh = self.sh
+        start, segs, end, tip = self._buffers(len(seg))
+        start.assign(st.astype(sh.dev.ndtype))
+        segs.assign(seg.astype(np.int32))
+        wp.launch(self.kernel, dim=(self.b, len(seg)), inputs=[sh.model, sh.control, sh.step, self.rods, start, segs,
+                                                                 self.bounds_d, int(store), sh.nodes, end, tip],
+                  device=sh.device)
+        return end.numpy().astype(np.float64), tip.numpy().astype(np.float64)
+
+    def evaluate(self, z: np.ndarray, store: bool = False) -> np.ndarray:
+        """(b, nz) the residual at z (``store``: keep the shape and the slots; a trial that
+        overflows gives non-finite entries, which the line search rejects)."""
+        st = self.starts(z)
+        end, tip = self.ends(st, np.arange(self.M), store)
+        with np.errstate(over="ignore", invalid="ignore"):
+            return self.residual(st, end, tip[:, -1])
+
+    def jacobian(self, z: np.ndarray) -> np.ndarray:
+        """(b, nz, nz) central differences of the residual: 2 integrations of one segment per unknown."""
+        nz = self.nz
+        seg_of = np.concatenate([np.zeros(6, dtype=int), 1 + np.arange(nz - 6) // self.d])
+        zs = np.repeat(z[:, None], 2 * nz, axis=1)  # (b, 2 nz, nz): +h then -h per unknown
+        cols = np.arange(nz)
+        zs[:, 2 * cols, cols] += PROBE
+        zs[:, 2 * cols + 1, cols] -= PROBE
+        st_all = self.starts(zs)
+        seg = np.repeat(seg_of, 2)
+        st_col = st_all[:, np.arange(2 * nz), seg]  # the perturbed segment's start, per column
+        end_col, tip_col = self.ends(st_col, seg)
+        base_st = self.starts(z)
+        base_end, base_tip = self.ends(base_st, np.arange(self.M))
+        end = np.repeat(base_end[:, None], 2 * nz, axis=1)
+        end[:, np.arange(2 * nz), seg] = end_col
+        tip = np.where((seg == self.M - 1)[None, :, None], tip_col, base_tip[:, None, -1])
+        with np.errstate(over="ignore", invalid="ignore"):
+            r = self.residual(st_all, end, tip)  # (b, 2 nz, nz)
+        return np.swapaxes((r[:, 0::2] - r[:, 1::2]) / (2 * PROBE), 1, 2)
+
+    def solve(self, mask: np.ndarray, tol: float, max_iter: int) -> tuple[np.ndarray, ...]:
+        """Newton for the rods in ``mask`` (b,) from self.z; returns converged (b,) bool, of
+        those the ones at the round-off floor (b,) bool, iterations (b,) and L |r| (b,); keeps the
+        shape and slots of the last point."""
+        self.rods.assign(mask.astype(np.int32))
+        z = self.z.copy()
+        r = self.evaluate(z)
+        norm = lambda a: np.sqrt(np.sum(np.square(np.nan_to_num(a, nan=np.inf)), axis=1))  # noqa: E731 (inf: overflow)
+        size = self.L * norm(r)
+        ok = size < tol
+        active = mask & ~ok & np.isfinite(size)
+        iters = np.zeros(self.b, dtype=np.int32)
+        limited = np.zeros(self.b, dtype=bool)
+        floor = FLOOR["float64" if self.wdt == wp.float64 else "float32"]
+        for _ in range(max_iter):
+            if not active.any():
+                break
+            iters[active] += 1
+            J = self.jacobian(z)
+            dz = np.zeros_like(z)
+            good = active & np.isfinite(J).all(axis=(1, 2))
+            try:
+                dz[good] = _equilibrated_solve(J[good], -r[good])
+            except np.linalg.LinAlgError:
+                good &= False
+            tiny = good & (np.linalg.norm(dz, axis=1) < floor * np.maximum(1.0, np.linalg.norm(z, axis=1)))
+            tiny &= size < STUCK * tol  # (far from tol a tiny step means a wrong Jacobian, not round-off)
+            limited |= tiny
+            ok |= tiny
+            good &= ~tiny
+            active &= ~tiny
+            lam = np.ones(self.b)
+            todo = good.copy()
+            for _h in range(HALVINGS):
+                trial = np.where(todo[:, None], z + lam[:, None] * dz, z)
+                rt = self.evaluate(trial)
+                st = self.L * norm(rt)
+                better = todo & np.isfinite(st) & (st < size)
+                z[better], r[better], size[better] = trial[better], rt[better], st[better]
+                todo &= ~better
+                lam[todo] *= 0.5
+                if not todo.any():
+                    break
+            self._absorb(z, better_mask := good & ~todo)
+            stuck = todo & (size < STUCK * tol)  # no decrease from a fresh Jacobian, near tol: round-off
+            limited |= stuck
+            ok |= active & ((size < tol) | stuck)
+            active &= better_mask & ~ok
+        self.z = np.where(mask[:, None] & ok[:, None], z, self.z)
+        self.evaluate(z, store=True)
+        return ok & mask, limited & mask, iters, size
