@@ -85,8 +85,8 @@ class ContactState:
         vel = out.q if sh.dynamic else out.p  # statics: no velocities (the kernel reads none)
         wp.launch(self.kernel, dim=(sh.b, sh.n1), inputs=[sh.model, out.p, out.R, vel, self.force, self.gap,
                                                           self.pressing], device=sh.device)
-        get = lambda a: sh.host(a).get(np.float64)  # noqa: E731
-        return get(self.force), get(self.gap), get(self.pressing) if sh.dynamic else get(self.gap)
+        gap = sh.host(self.gap).get(np.float64)
+        return sh.host(self.force).get(np.float64), gap, sh.host(self.pressing).get(np.float64) if sh.dynamic else gap
 
     def half_band(self) -> np.ndarray:
         """(b, O) half the width of the law's rounded band, eps / 2 = E I / (2 L^3 k) [m]: a node

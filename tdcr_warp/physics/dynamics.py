@@ -328,8 +328,8 @@ def _segment_count(sim: Simulator, segments: int | None) -> int:
     if segments > 1 and not allowed:
         raise InputError("segments > 1 (multiple shooting) needs a robot without displacement control, friction, "
                          "a constrained tip or obstacles (not built yet)")
-    warning = single_shooting_warning(sim.robot, sim.opts.precision, sim.dt, sim.coef[0] * sim.dt)
-    if segments == 1 and warning:
+    warning = segments == 1 and single_shooting_warning(sim.robot, sim.opts.precision, sim.dt, sim.coef[0] * sim.dt)
+    if warning:
         warnings.warn(warning, stacklevel=3)
     return segments
 
