@@ -91,7 +91,11 @@ class StaticOptions:
     solve, no verdict). contact_tolerance: the penetration of a rigid obstacle allowed, as a
     fraction of the rod's radius (rigid obstacles are stiffened until it holds; beyond it a rod
     is flagged PENETRATION). contact_steps: the most stiffenings per solve
-    (tdcr_warp/physics/contact.py).
+    (tdcr_warp/physics/contact.py). segments: multiple shooting (tdcr_warp/physics/segments.py),
+    for robots without tendon states, a constrained tip or disks: None (the default) splits only
+    the rods single shooting cannot resolve (statics: a contact left unresolved; dynamics: a step
+    that fails where dt is beyond single shooting's reach) into as many segments as they need; M
+    solves every rod in M segments (statics: from single shooting's answer); 1: never.
     """
 
     nodes: int = 50
@@ -114,6 +118,7 @@ class StaticOptions:
     stability: str = "check"
     contact_tolerance: float = 0.01
     contact_steps: int = 8
+    segments: int | None = None
 
     def __post_init__(self):
         def integer(v, low, high=10**9):
@@ -146,6 +151,7 @@ class StaticOptions:
             ("stability", one_of(self.stability, STABILITY), f"one of {STABILITY}"),
             ("contact_tolerance", positive(self.contact_tolerance), "a positive number"),
             ("contact_steps", integer(self.contact_steps, 0, 100), "an integer in [0, 100]"),
+            ("segments", self.segments is None or integer(self.segments, 1), "a positive integer or None"),
         ]
         for name, ok, what in checks:
             if not ok:

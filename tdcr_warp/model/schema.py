@@ -236,6 +236,9 @@ _TABLES = (
             "rod's radius", default=0.01, checked_by="StaticOptions"),
         Key("contact_steps", "integer", "-", "the most rounds of stiffening rigid obstacles, in [0, 100]", default=8,
             checked_by="StaticOptions"),
+        Key("segments", "integer", "-", "multiple shooting: every rod in this many segments (at most nodes), 1: "
+            "never", default=None, default_text="only the rods single shooting cannot resolve, in as many as they "
+            "need", checked_by="StaticOptions"),
     )),
     Table("dynamics", "Time stepping (`tdcr-warp simulate`, `control`); an empty table is none.", keys=(
         Key("dt", "number", "s", "time step", "", REQUIRED),

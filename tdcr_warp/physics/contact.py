@@ -19,6 +19,7 @@ clamped inside an obstacle, is flagged ``PENETRATION``.
 
 from __future__ import annotations
 
+import math
 from contextlib import contextmanager
 
 import numpy as np
@@ -27,13 +28,28 @@ import warp as wp
 from tdcr_warp.core.solver import Shooting
 from tdcr_warp.kernels import layout
 from tdcr_warp.kernels.contact import make_contact_kernel
+from tdcr_warp.physics.segments import SEGMENT_REACH, SINGLE_REACH, SWITCH_REACH, Segments
 
-__all__ = ["Contact", "chunk_contacts", "penetration"]
+__all__ = ["Contact", "chunk_contacts", "contact_segments", "penetration"]
 
 MAX_FACTOR = 1e3  # the most one round of stiffening asks for
 STEP, MIN_STEP, MAX_TRIES = 10.0, 1.15, 40  # climbing: the first factor per solve, the smallest, the most solves
 SOFT = 1e-3  # a cold solve starts with its obstacles this many times as stiff (a failed rod: SOFT^2)
 EXACT = {"broyden": False}  # a failed step's retry: a Jacobian at every iterate (the contact set moves)
+
+
+def contact_growth(rod: np.ndarray, stiffness: np.ndarray, length: np.ndarray | None = None) -> np.ndarray:
+    """(b,) ln of a start error's growth along a line contact, 2 beta l with beta = (k / 4 E I)^(1/4),
+    the rods' rows ``rod`` (b, ROD_WIDTH) on their stiffest obstacle (``stiffness`` (b, O) [N/m^2])
+    over ``length`` (b,) [m] (None: the whole rod)."""
+    L, ei = rod[:, layout.LENGTH], rod[:, layout.FORCE_SCALE] * rod[:, layout.LENGTH] ** 2
+    return 2.0 * (L if length is None else length) * (stiffness.max(axis=1) / (4.0 * ei)) ** 0.25
+
+
+def contact_segments(rod: np.ndarray, stiffness: np.ndarray, precision: str) -> np.ndarray:
+    """(b,) the segments (of equal length) that keep ``contact_growth`` within SEGMENT_REACH per
+    segment wherever the rod lies on its stiffest obstacle."""
+    return np.ceil(contact_growth(rod, stiffness) / math.log(SEGMENT_REACH[precision])).astype(int)
 
 
 def penetration(gap: np.ndarray) -> np.ndarray:
@@ -52,6 +68,7 @@ class ContactState:
         self.rigid = rigid  # (O,) bool
         self.reach = np.broadcast_to(reach, (b,))  # the rods' radii [m]
         self.per_len = np.broadcast_to(rod[:, layout.FORCE_SCALE] / rod[:, layout.LENGTH], (b,))  # E I / L^3
+        self.rod = rod
         self.table = self.start_table.copy()
         sh.model.obst = sh.dev.array(self.table)
         self.kernel = make_contact_kernel(sh.dev.wdtype, sh.dynamic)
@@ -64,6 +81,7 @@ class ContactState:
         one: the rigid obstacles at ``stiffness`` (b, O) [N/m^2] (the warm start's: its schedule
         need not be climbed again), a compliant one at its own."""
         self.table = self.start_table.copy()
+        self.segs = self.count = None  # every rod by single shooting again
         k = self.table[..., layout.OB_STIFF]
         if stiffness is not None and stiffness.shape == self.table.shape[:2]:
             self.table[..., layout.OB_STIFF] = np.where(self.rigid[None], stiffness, k)
@@ -134,9 +152,96 @@ class ContactState:
                 "status": np.where(bad, status | layout.PENETRATION, status)}
 
 
-class Contact(ContactState):
+class ContactSplitting(ContactState):
+    """The rods of one chunk's contact that single shooting cannot carry up the stiffness climb,
+    split: solved by multiple shooting (tdcr_warp/physics/segments.py) from then on, each in as
+    many segments as its own contact needs (``split_rods``), and its own shooting per rod
+    (``_solve``)."""
+
+    segs: dict | None = None  # {M: Segments}: multiple shooting in M segments
+    count: np.ndarray | None = None  # (b,) int: the segments each rod is split into (0: single shooting)
+    armed: tuple | None = None  # (True, count): a rod single shooting fails is split (count: None or M)
+
+    def arm(self, segments: int | None) -> None:
+        """Split the rods single shooting fails in a climb (``StaticOptions.segments``: None: as
+        many segments as they need; M; 1: never)."""
+        self.armed = None if segments == 1 else (True, segments)
+
+    def split_mask(self) -> np.ndarray:
+        """(b,) bool: the rods multiple shooting solves."""
+        return self.split_count() > 0
+
+    def split_count(self) -> np.ndarray:
+        """(b,) int: the segments each rod is split into (0: single shooting)."""
+        return np.zeros(self.sh.b, dtype=int) if self.count is None else self.count
+
+    def _last(self) -> tuple:
+        """The last solution of every rod: its single-shooting unknowns, and a split rod's segments'."""
+        return self.sh.host(self.sh.newton.x).get(), {M: seg.state() for M, seg in (self.segs or {}).items()}
+
+    def _solve(self, start: tuple, rods: np.ndarray, newton: dict) -> None:
+        """Solve ``rods`` (b,) from ``start`` (a ``_last``), each by its own shooting."""
+        single = rods & ~self.split_mask()
+        if single.any():
+            self.sh.solve(start[0], mask=single, fresh_jacobian=True, **newton)
+        for M, seg in (self.segs or {}).items():
+            mine = rods & (self.count == M)
+            if mine.any():
+                if M in start[1]:
+                    seg.restore(start[1][M], mine)
+                seg.solve_into(mine, newton["tol"], newton["max_iter"])
+
+    def _need(self, stiffness: np.ndarray) -> np.ndarray:
+        """(b,) the segments each rod needs at ``stiffness`` (b, O) (``contact_segments``, or the
+        count armed; within 2..N)."""
+        sh = self.sh
+        if self.armed[1]:
+            need = np.full(sh.b, self.armed[1])
+        else:
+            need = contact_segments(np.broadcast_to(self.rod, (sh.b, self.rod.shape[1])), stiffness, self._precision)
+        return np.clip(need, 2, sh.n1 - 1)
+
+    @property
+    def _precision(self) -> str:
+        return "float64" if self.sh.dev.wdtype == wp.float64 else "float32"
+
+    def _growth(self, stiffness: np.ndarray) -> np.ndarray:
+        """(b,) ``contact_growth`` at ``stiffness`` (b, O) over the length of each rod that
+        touches an obstacle in its last stored shape (nodes within the law's half band)."""
+        sh = self.sh
+        _f, _g, gap = self.measure()
+        touching = (gap < self.half_band()[:, None, :]).any(axis=2)  # (b, N+1)
+        length = touching.sum(axis=1) * np.broadcast_to(self.rod[:, layout.LENGTH], (sh.b,)) / (sh.n1 - 1)
+        return contact_growth(np.broadcast_to(self.rod, (sh.b, self.rod.shape[1])), stiffness, length)
+
+    def _split_ahead(self, rods: np.ndarray, stiffness: np.ndarray) -> None:
+        """Before a climb to ``stiffness`` (b, O): ``rods`` (b,) whose present contact would grow
+        a start error beyond SINGLE_REACH along its length are split, and split rods that need
+        more segments there split again (``split_rods``, sized for STEP times that stiffness)."""
+        split = self.split_mask()
+        beyond = self._growth(stiffness) > math.log(SINGLE_REACH[self._precision])
+        grow = rods & ((~split & beyond) | (split & (self._need(stiffness * STEP) > self.split_count())))
+        if grow.any():
+            self.split_rods(grow, stiffness * STEP)
+
+    def split_rods(self, rods: np.ndarray, stiffness: np.ndarray) -> None:
+        """``rods`` (b,) solved by multiple shooting from now on, from their last shapes, each in
+        as many segments as its contact at ``stiffness`` (b, O) [N/m^2] needs (or the count armed)."""
+        need = self._need(stiffness)
+        if self.segs is None:
+            self.segs, self.count = {}, np.zeros(self.sh.b, dtype=int)
+        for M in np.unique(need[rods]).tolist():
+            mine = rods & (need == M)
+            if M not in self.segs:
+                self.segs[M] = Segments(self.sh, self.rod, M, 0.0)
+            self.segs[M].from_nodes(self.sh.nodes, mine)
+            self.count[mine] = M
+
+
+class Contact(ContactSplitting):
     """The schedule of one chunk's contact: its rigid obstacles climbed, settled, softened and
-    stiffened toward rigid contact (see the module)."""
+    stiffened toward rigid contact (see the module), splitting the rods single shooting cannot
+    carry where armed."""
 
     def _count(self, rods: np.ndarray, iters: np.ndarray, shots: np.ndarray) -> None:
         it, sn = self.sh.counts()
@@ -155,21 +260,32 @@ class Contact(ContactState):
             ok &= (goal > k * (1 + 1e-12)).any(axis=1) & (step >= MIN_STEP)
             if not ok.any():
                 return
-            x_prev, old = sh.host(sh.newton.x).get(), self.table.copy()
+            prev, old = self._last(), self.table.copy()
+            if self.armed:
+                self._split_ahead(ok, np.where(ok[:, None], np.minimum(goal, k * step[:, None]), k))
+                prev = self._last()
             self.table[..., layout.OB_STIFF] = np.where(ok[:, None], np.minimum(goal, k * step[:, None]), k)
             sh.dev.put(sh.model.obst, self.table)
             for group, how in ((ok & ~exact, newton), (ok & exact, newton | EXACT)):
                 if group.any():
-                    sh.solve(x_prev, mask=group, fresh_jacobian=True, **how)
+                    self._solve(prev, group, how)
                     self._count(group, iters, shots)
             failed = ok & ~sh.converged()
             exact &= ~(ok & ~failed)  # a step taken: the next starts with Broyden again
             if failed.any():
                 self.table[failed] = old[failed]
                 sh.dev.put(sh.model.obst, self.table)
-                sh.solve(x_prev, mask=failed, fresh_jacobian=True, **newton)
+                self._solve(prev, failed, newton)
                 self._count(failed, iters, shots)
-                step[failed & exact] = np.sqrt(step[failed & exact])
+                again = failed & exact
+                if self.armed:  # failed twice where single shooting is at risk: again by multiple shooting
+                    tried = k * np.where(failed, step, 1.0)[:, None]
+                    risk = self._growth(tried) > math.log(SWITCH_REACH[self._precision])
+                    grow = again & risk & (~self.split_mask() | (self._need(tried) > self.split_count()))
+                    if grow.any():
+                        self.split_rods(grow, tried * STEP)
+                        again &= ~grow
+                step[again] = np.sqrt(step[again])
                 exact |= failed
 
     def settle(self, x0: np.ndarray, newton: dict) -> None:
@@ -195,7 +311,7 @@ class Contact(ContactState):
         if failed.any():
             self.table[failed, :, layout.OB_STIFF] = self.goal[failed] * SOFT * SOFT
             sh.dev.put(sh.model.obst, self.table)
-            sh.solve(x0, mask=failed, fresh_jacobian=True, **newton)
+            sh.solve(x0, mask=failed, fresh_jacobian=True, **newton)  # (a cold start: no rod is split yet)
             self._count(failed, iters, shots)
             self.climb(failed & sh.converged(), self.goal, newton, iters, shots)
         sh.set_counts(iters, shots)
@@ -215,6 +331,16 @@ class Contact(ContactState):
         self.climb(failed & sh.converged(), goal, newton, iters, shots)
         sh.set_counts(iters, shots)
         return failed & ~sh.converged()
+
+    def split_stiffen(self, rods: np.ndarray, tolerance: float, steps: int, newton: dict) -> None:
+        """``rods`` (b,) solved again by multiple shooting from their last shapes (``split_rods``)
+        and stiffened on (``stiffen``); iterations and integrations add up."""
+        iters, shots = self.sh.counts()
+        self.split_rods(rods, self.table[..., layout.OB_STIFF] * STEP)
+        self._solve(self._last(), rods, newton)
+        self._count(rods, iters, shots)
+        self.sh.set_counts(iters, shots)
+        self.stiffen(tolerance, steps, newton, rods)
 
     def stiffen(self, tolerance: float, steps: int, newton: dict, rods: np.ndarray | None = None) -> None:
         """Rigid obstacles stiffened until each rod's penetration is within ``tolerance`` radii
@@ -238,12 +364,17 @@ class Contact(ContactState):
         sh.set_counts(iters, shots)
 
 
-def chunk_contacts(robot, tables, solvers: list[Shooting], chunks: list[tuple[int, int]]) -> list[Contact]:
-    """The Contact of each chunk's Shooting (none without obstacles)."""
+def chunk_contacts(robot, tables, solvers: list[Shooting], chunks: list[tuple[int, int]],
+                   segments: int | None = 1) -> list[Contact]:
+    """The Contact of each chunk's Shooting (none without obstacles), armed with ``segments``
+    (``Contact.arm``; 1: never split)."""
     if not tables.features.contact:
         return []
     rigid = np.array([ob.rigid for ob in robot.obstacles], dtype=bool)
     radius = robot.radius
-    return [Contact(sh, tables.rows("obst", lo, hi), tables.rows("rod", lo, hi), rigid,
-                    radius[lo:hi] if len(radius) > 1 else radius)
-            for sh, (lo, hi) in zip(solvers, chunks)]
+    contacts = [Contact(sh, tables.rows("obst", lo, hi), tables.rows("rod", lo, hi), rigid,
+                        radius[lo:hi] if len(radius) > 1 else radius)
+                for sh, (lo, hi) in zip(solvers, chunks)]
+    for contact in contacts:
+        contact.arm(segments)
+    return contacts

@@ -194,10 +194,10 @@ class Simulator(_Readings):
     shortening: sliding toward the motor, +1); the static start uses slip +1. Below
     ``slip_speed`` [m/s] friction fades like viscous friction: dynamics has no static stick.
 
-    segments: multiple shooting (tdcr_warp/physics/segments.py: each rod split into that many
-    segments in every step; 1: never); None (default): single shooting, and where dt is beyond
-    its comfortable reach a rod whose step fails it (and its retries) is split into as many
-    segments as dt needs from then on (not yet with tendon states, a held tip or obstacles).
+    segments (a solver option): multiple shooting (tdcr_warp/physics/segments.py: each rod split
+    into that many segments in every step; 1: never); None (default): single shooting, and where
+    dt is beyond its comfortable reach a rod whose step fails it (and its retries) is split into
+    as many segments as dt needs from then on (not yet with tendon states or a held tip).
 
     Obstacles and a held tip act in every step as in statics (docs/contact.md, "In motion"): the
     contact damped by each obstacle's ``damping``, a rigid one stiffened where a step presses a rod
@@ -208,7 +208,7 @@ class Simulator(_Readings):
     def __init__(self, robot: Robot, tensions=None, *, dt: float, alpha: float = 0.0,
                  options: StaticOptions | None = None, device: str | None = None,
                  initial: StaticSolution | None = None, displacements=None, slip_speed: float = 1e-3,
-                 segments: int | None = None, **overrides):
+                 **overrides):
         _check_stepping(dt, alpha)
         self.robot = robot
         self.opts = (options or StaticOptions()).override(**overrides)
@@ -225,7 +225,7 @@ class Simulator(_Readings):
             raise InputError(f"dynamics needs solver model 'coupled' or 'point', got {self.opts.model!r} (the disk "
                              "model is static for now)")
         static, self.tables, x0 = _static_start(robot, tau, displacements, initial, self.opts, self.dev)
-        self.segments, self.split_all = _segment_count(self, segments), segments is not None
+        self.segments, self.split_all = _segment_count(self, self.opts.segments), self.opts.segments is not None
         self.grid = np.broadcast_to(self.tables.grid, (self.B, self.tables.grid.shape[1]))
         self.path = static.tendon_path_length
         self.chunks = split(self.B, self.dev, self.opts.threads)
@@ -501,8 +501,8 @@ class _Chunk:
             failed &= self._retry(failed, tau, tau_prev, avail)
         if failed.any() and self.seg:  # beyond single shooting and its retries: split from now on
             self.split, split = self.split | failed, split | failed
-        if split.any():
-            self._segmented(split)
+        if split.any():  # multiple shooting: the Newton on the host, the segments on the device
+            self.seg.solve_into(split, newton["tol"], newton["max_iter"])
         status, pen = sh.status(), np.zeros(sh.b)
         if self.contact:
             tol = self.sim.opts.contact_tolerance
@@ -513,21 +513,6 @@ class _Chunk:
         sh.host(self.ok).put(ok)
         self._end_step()
         return ok, status, sh.host(sh.newton.iters).get(), sh.host(sh.newton.resnorm).get(np.float64), pen
-
-    def _segmented(self, rods: np.ndarray) -> None:
-        """The step of ``rods`` (b,) by multiple shooting (its Newton on the host, the segments on
-        the device); their base wrench (the single-shooting unknowns, which the history's end of
-        step extrapolates) and outcome put beside the other rods'."""
-        sh = self.sh
-        ok, limited, iters, size = self.seg.solve(rods, self.newton["tol"], self.newton["max_iter"])
-        status = np.where(ok, layout.CONVERGED, np.where(np.isfinite(size), layout.MAX_ITER, layout.NONFINITE))
-        status = np.where(limited, status | layout.PRECISION_LIMITED, status)
-        for arr, values in ((sh.newton.status, status), (sh.newton.x, self.seg.z[:, :6]), (sh.newton.iters, iters),
-                            (sh.newton.resnorm, size)):
-            mirror = sh.host(arr)
-            merged = mirror.get(np.float64).copy()
-            merged[rods] = values[rods]
-            mirror.put(merged)
 
     def _retry(self, failed: np.ndarray, tau: np.ndarray, tau_prev: np.ndarray, avail: np.ndarray | None) -> np.ndarray:
         """The rods ``failed`` (b,) of this step solved again: a homotopy in the tension increment,

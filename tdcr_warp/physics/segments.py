@@ -9,8 +9,10 @@ same way (the rotation's as the rotation vector of R_start^T R_end), then the ti
 single shooting; L |r| < tol is convergence, the same measure as single shooting's.
 
 Newton with a Jacobian of central differences at every iterate (2 integrations of a segment per
-unknown: about 2 nu / M rod integrations), solved per rod (dense; its block-bidiagonal structure
-is not exploited yet), with a backtracking line search on |r|. As in single shooting, a step
+unknown: about 2 nu / M rod integrations; an unknown moves only the gaps into and out of its
+segment, so only those blocks are formed), solved per rod (dense; its block-bidiagonal structure
+is not exploited by the solve yet), with a backtracking line search on |r|. A rod whose Newton
+fails keeps its unknowns and reference rotations. As in single shooting, a step
 from that Jacobian shorter than 1e-12 |z| (float32: 1e-5) means z is exact to working precision
 and the residual at its round-off floor: converged, PRECISION_LIMITED, if L |r| < 100 tol; so is
 a point within 100 tol from which no step along a fresh Newton direction lowers |r| (small dt puts the floor of L |r|
@@ -31,7 +33,8 @@ from tdcr_warp.kernels.segments import STATE, make_segment_kernel
 
 __all__ = ["Segments", "growth", "rodrigues", "segments_needed", "single_shooting_warning"]
 
-PROBE = 1e-6  # the central differences' step, per scaled unknown
+PROBE = 1e-8  # the central differences' step, per scaled unknown (1e-6 straddles the contact law's band at rigid
+# stiffness, ~1e-9 m wide: the climbs of a bent tube failed at 80 segments; 1e-8 passed them at 40)
 FLOOR = {"float64": 1e-12, "float32": 1e-5}  # a Newton step this short (relative to z): round-off
 STUCK = 100.0  # no decrease of |r| along a fresh Newton step within this many tol: round-off
 HALVINGS = 12  # the line search's
@@ -104,6 +107,12 @@ def _vee(a: np.ndarray) -> np.ndarray:
                           axis=-1)
 
 
+def _norm(a: np.ndarray) -> np.ndarray:
+    """(b,) |a| of each row of a (b, n); inf where a trial overflowed (NaN or inf entries)."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        return np.sqrt(np.sum(np.square(np.nan_to_num(a, nan=np.inf)), axis=1))
+
+
 def _equilibrated_solve(J: np.ndarray, rhs: np.ndarray) -> np.ndarray:
     """(b, n) the solutions of J x = rhs, each J (b, n, n) scaled to unit largest column and row
     entries first (its columns span 8 decades at small dt: the velocities' pull on the forces)."""
@@ -133,6 +142,14 @@ class SegmentUnknowns:
         self.Rref = np.tile(np.eye(3), (self.b, self.M - 1, 1, 1))
         self.z = np.zeros((self.b, self.nz))
 
+    def state(self) -> tuple[np.ndarray, np.ndarray]:
+        """The unknowns and reference rotations of every rod (a copy, for ``restore``)."""
+        return self.z.copy(), self.Rref.copy()
+
+    def restore(self, state: tuple, rods: np.ndarray) -> None:
+        """The unknowns and reference rotations of ``rods`` (b,) as a ``state`` held them."""
+        self.z[rods], self.Rref[rods] = state[0][rods], state[1][rods]
+
     def from_nodes(self, out, rods: np.ndarray) -> None:
         """The unknowns of ``rods`` (b,) from a stored shape (a Shooting's ``nodes``): a start."""
         at = self.bounds[:-1]  # the segments' first nodes
@@ -147,33 +164,36 @@ class SegmentUnknowns:
         self.z[rods] = np.concatenate(z, axis=1)[rods]
         self.Rref[rods] = R[rods, 1:]
 
+    def _state(self, y: np.ndarray, Rref: np.ndarray) -> np.ndarray:
+        """(b, ..., STATE) the start states of later segments from their scaled unknowns y
+        (b, ..., d) and reference rotations Rref (b, ..., 3, 3)."""
+        y = y * self.scale.reshape((self.b,) + (1,) * (y.ndim - 2) + (self.d,))
+        st = np.zeros(y.shape[:-1] + (STATE,))
+        st[..., 0:3] = y[..., 0:3]
+        st[..., 3:12] = (Rref @ rodrigues(y[..., 3:6])).reshape(y.shape[:-1] + (9,))
+        st[..., 12:12 + self.d - 6] = y[..., 6:]
+        return st
+
     def starts(self, z: np.ndarray) -> np.ndarray:
-        """(b, [C,] M, STATE) every segment's start state from unknowns z (b, [C,] nz) (C: columns
-        of perturbed unknowns)."""
-        zc = z.reshape(self.b, -1, self.nz)
-        C = zc.shape[1]
-        st = np.zeros((self.b, C, self.M, STATE))
-        st[:, :, 0, 3:12] = np.eye(3).ravel()
-        st[:, :, 0, 12:18] = zc[..., :6] * self.base_scale[:, None]
-        y = zc[..., 6:].reshape(self.b, C, self.M - 1, self.d) * self.scale[:, None, None]
-        st[:, :, 1:, 0:3] = y[..., 0:3]
-        st[:, :, 1:, 3:12] = (self.Rref[:, None] @ rodrigues(y[..., 3:6])).reshape(self.b, C, self.M - 1, 9)
-        st[:, :, 1:, 12:18] = y[..., 6:12]
-        if self.dynamic:
-            st[:, :, 1:, 18:24] = y[..., 12:18]
-        return st.reshape(z.shape[:-1] + (self.M, STATE))
+        """(b, M, STATE) every segment's start state from unknowns z (b, nz)."""
+        st = np.zeros((self.b, self.M, STATE))
+        st[:, 0, 3:12] = np.eye(3).ravel()
+        st[:, 0, 12:18] = z[:, :6] * self.base_scale
+        st[:, 1:] = self._state(z[:, 6:].reshape(self.b, self.M - 1, self.d), self.Rref)
+        return st
+
+    def gap(self, e: np.ndarray, a: np.ndarray) -> np.ndarray:
+        """(b, ..., d) the scaled gap from end states e to start states a (b, ..., STATE) each
+        (the rotation's as the rotation vector of R_a^T R_e)."""
+        Ra, Re = a[..., 3:12].reshape(a.shape[:-1] + (3, 3)), e[..., 3:12].reshape(e.shape[:-1] + (3, 3))
+        g = np.concatenate([e[..., 0:3] - a[..., 0:3], _vee(np.swapaxes(Ra, -1, -2) @ Re),
+                            e[..., 12:12 + self.d - 6] - a[..., 12:12 + self.d - 6]], axis=-1)
+        return g / self.scale.reshape((self.b,) + (1,) * (g.ndim - 2) + (self.d,))
 
     def residual(self, st: np.ndarray, end: np.ndarray, tip: np.ndarray) -> np.ndarray:
-        """(..., nz) the scaled gaps between segment ends ``end`` (..., M, STATE) and the next
-        starts ``st``, then the tip residual ``tip`` (..., 6)."""
-        a, e = st[..., 1:, :], end[..., :-1, :]
-        Ra, Re = a[..., 3:12].reshape(a.shape[:-1] + (3, 3)), e[..., 3:12].reshape(e.shape[:-1] + (3, 3))
-        gap = [e[..., 0:3] - a[..., 0:3], _vee(np.swapaxes(Ra, -1, -2) @ Re), e[..., 12:18] - a[..., 12:18]]
-        if self.dynamic:
-            gap.append(e[..., 18:24] - a[..., 18:24])
-        scale = self.scale.reshape((self.b,) + (1,) * (st.ndim - 3) + (1, self.d))
-        r = np.concatenate(gap, axis=-1) / scale
-        return np.concatenate([r.reshape(r.shape[:-2] + (-1,)), tip], axis=-1)
+        """(b, nz) the scaled gaps between segment ends ``end`` (b, M, STATE) and the next starts
+        ``st``, then the tip residual ``tip`` (b, 6)."""
+        return np.concatenate([self.gap(end[:, :-1], st[:, 1:]).reshape(self.b, -1), tip], axis=1)
 
     def _absorb(self, z: np.ndarray, rods: np.ndarray) -> None:
         """The rotation vectors of ``rods`` folded into their reference rotations (theta = 0)."""
@@ -199,6 +219,8 @@ class Segments(SegmentUnknowns):
         self.kernel = make_segment_kernel(*sh.variant)
         self.bounds_d = wp.array(bounds, dtype=int, device=sh.device)
         self.rods = wp.ones(sh.b, dtype=int, device=sh.device)  # the rods a launch integrates
+        self.mask = np.ones(sh.b, dtype=bool)  # its host copy
+        self.spent = np.zeros(sh.b)  # rod integrations of the last solve
         self._arrays = {}
 
     def _buffers(self, C: int):
@@ -219,6 +241,7 @@ class Segments(SegmentUnknowns):
         wp.launch(self.kernel, dim=(self.b, len(seg)), inputs=[sh.model, sh.control, sh.step, self.rods, start, segs,
                                                                  self.bounds_d, int(store), sh.nodes, end, tip],
                   device=sh.device)
+        self.spent[self.mask] += len(seg) / self.M
         return end.numpy().astype(np.float64), tip.numpy().astype(np.float64)
 
     def evaluate(self, z: np.ndarray, store: bool = False) -> np.ndarray:
@@ -230,35 +253,47 @@ class Segments(SegmentUnknowns):
             return self.residual(st, end, tip[:, -1])
 
     def jacobian(self, z: np.ndarray) -> np.ndarray:
-        """(b, nz, nz) central differences of the residual: 2 integrations of one segment per unknown."""
-        nz = self.nz
-        seg_of = np.concatenate([np.zeros(6, dtype=int), 1 + np.arange(nz - 6) // self.d])
-        zs = np.repeat(z[:, None], 2 * nz, axis=1)  # (b, 2 nz, nz): +h then -h per unknown
-        cols = np.arange(nz)
-        zs[:, 2 * cols, cols] += PROBE
-        zs[:, 2 * cols + 1, cols] -= PROBE
-        st_all = self.starts(zs)
-        seg = np.repeat(seg_of, 2)
-        st_col = st_all[:, np.arange(2 * nz), seg]  # the perturbed segment's start, per column
-        end_col, tip_col = self.ends(st_col, seg)
+        """(b, nz, nz) central differences of the residual, block by block: unknown j moves the
+        start of its segment s only, so only the gap into s and the gap out of s (or the tip
+        residual) change; 2 integrations of segment s per unknown."""
+        b, nz, d, M = self.b, self.nz, self.d, self.M
+        seg_of = np.concatenate([np.zeros(6, dtype=int), 1 + np.arange(nz - 6) // d])
         base_st = self.starts(z)
-        base_end, base_tip = self.ends(base_st, np.arange(self.M))
-        end = np.repeat(base_end[:, None], 2 * nz, axis=1)
-        end[:, np.arange(2 * nz), seg] = end_col
-        tip = np.where((seg == self.M - 1)[None, :, None], tip_col, base_tip[:, None, -1])
-        with np.errstate(over="ignore", invalid="ignore"):
-            r = self.residual(st_all, end, tip)  # (b, 2 nz, nz)
-        return np.swapaxes((r[:, 0::2] - r[:, 1::2]) / (2 * PROBE), 1, 2)
+        base_end, _tip = self.ends(base_st, np.arange(M))
+        sign = np.tile([PROBE, -PROBE], nz)  # +h then -h per unknown
+        seg, cols = np.repeat(seg_of, 2), np.repeat(np.arange(nz), 2)
+        st = np.repeat(base_st[:, :1], 12, axis=1)  # the base wrench's columns
+        st[:, np.arange(12), 12 + cols[:12]] += sign[:12] * self.base_scale[:, cols[:12]]
+        later = np.arange(12, 2 * nz)
+        block = 6 + d * (seg[later, None] - 1) + np.arange(d)  # (columns, d) each column's block of z
+        y = z[:, block]
+        y[:, np.arange(len(later)), (cols[later] - 6) % d] += sign[later]
+        st = np.concatenate([st, self._state(y, self.Rref[:, seg[later] - 1])], axis=1)
+        end, tip = self.ends(st, seg)  # (a column that overflows gives non-finite entries: no step)
+        diff = lambda g: (g[:, 0::2] - g[:, 1::2]) / (2 * PROBE)  # noqa: E731
+        J = np.zeros((b, nz, nz))
+        into = np.arange(6, nz)  # the gap into segment s >= 1 from its start
+        rows = d * (seg_of[into, None] - 1) + np.arange(d)
+        J[:, rows, into[:, None]] = diff(self.gap(base_end[:, seg[later] - 1], st[:, later]))
+        out = np.flatnonzero(seg_of < M - 1)  # the gap out of segment s from its end
+        pick = np.repeat(out, 2) * 2 + np.tile([0, 1], len(out))
+        rows = d * seg_of[out, None] + np.arange(d)
+        J[:, rows, out[:, None]] = diff(self.gap(end[:, pick], base_st[:, seg[pick] + 1]))
+        last = np.flatnonzero(seg_of == M - 1)  # the tip residual, from the last segment's end
+        pick = np.repeat(last, 2) * 2 + np.tile([0, 1], len(last))
+        J[:, d * (M - 1) + np.arange(6)[None, :], last[:, None]] = diff(tip[:, pick])
+        return J
 
     def solve(self, mask: np.ndarray, tol: float, max_iter: int) -> tuple[np.ndarray, ...]:
         """Newton for the rods in ``mask`` (b,) from self.z; returns converged (b,) bool, of
         those the ones at the round-off floor (b,) bool, iterations (b,) and L |r| (b,); keeps the
         shape and slots of the last point."""
         self.rods.assign(mask.astype(np.int32))
-        z = self.z.copy()
+        self.mask = mask.copy()
+        self.spent[:] = 0.0
+        z, Rref = self.z.copy(), self.Rref.copy()
         r = self.evaluate(z)
-        norm = lambda a: np.sqrt(np.sum(np.square(np.nan_to_num(a, nan=np.inf)), axis=1))  # noqa: E731 (inf: overflow)
-        size = self.L * norm(r)
+        size = self.L * _norm(r)
         ok = size < tol
         active = mask & ~ok & np.isfinite(size)
         iters = np.zeros(self.b, dtype=np.int32)
@@ -286,7 +321,7 @@ class Segments(SegmentUnknowns):
             for _h in range(HALVINGS):
                 trial = np.where(todo[:, None], z + lam[:, None] * dz, z)
                 rt = self.evaluate(trial)
-                st = self.L * norm(rt)
+                st = self.L * _norm(rt)
                 better = todo & np.isfinite(st) & (st < size)
                 z[better], r[better], size[better] = trial[better], rt[better], st[better]
                 todo &= ~better
@@ -298,6 +333,25 @@ class Segments(SegmentUnknowns):
             limited |= stuck
             ok |= active & ((size < tol) | stuck)
             active &= better_mask & ~ok
-        self.z = np.where(mask[:, None] & ok[:, None], z, self.z)
         self.evaluate(z, store=True)
+        keep = mask & ok  # a rod that failed keeps its unknowns and reference rotations
+        self.z = np.where(keep[:, None], z, self.z)
+        self.Rref = np.where(keep[:, None, None, None], self.Rref, Rref)
         return ok & mask, limited & mask, iters, size
+
+    def solve_into(self, rods: np.ndarray, tol: float, max_iter: int) -> None:
+        """``solve`` ``rods`` (b,); their status, base wrench, iterations, integrations, residual
+        and orthogonality error put beside the other rods' in the Shooting's own arrays."""
+        sh = self.sh
+        ok, limited, iters, size = self.solve(rods, tol, max_iter)
+        status = np.where(ok, layout.CONVERGED, np.where(np.isfinite(size), layout.MAX_ITER, layout.NONFINITE))
+        status = np.where(limited, status | layout.PRECISION_LIMITED, status)
+        R = sh.host(sh.nodes.R).get(np.float64)
+        orth = np.abs(np.swapaxes(R, -1, -2) @ R - np.eye(3)).max(axis=(1, 2, 3))
+        for arr, values in ((sh.newton.status, status), (sh.newton.x, self.z[:, :6]), (sh.newton.iters, iters),
+                            (sh.newton.n_shoot, np.ceil(self.spent)), (sh.newton.resnorm, size),
+                            (sh.nodes.orth, orth)):
+            mirror = sh.host(arr)
+            merged = mirror.get(np.float64).copy()
+            merged[rods] = values[rods]
+            mirror.put(merged)

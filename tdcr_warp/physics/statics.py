@@ -28,7 +28,8 @@ from tdcr_warp.kernels import layout
 from tdcr_warp.model.options import StaticOptions, describe_status
 from tdcr_warp.model.robot import InputError, Robot, check_command, check_slip, real_array, require_memory
 from tdcr_warp.physics.assessment import Assessor
-from tdcr_warp.physics.contact import chunk_contacts, penetration
+from tdcr_warp.physics.contact import Contact, chunk_contacts, penetration
+from tdcr_warp.physics.segments import Segments
 from tdcr_warp.physics.sensitivity import parameter_tables
 from tdcr_warp.physics.slack import available_lengths, linear_tensions, settle_slack, tendon_compliance
 
@@ -99,7 +100,8 @@ class StaticSolution(RodRows):
     obstacle [m] (negative: penetration), contact_stiffness (B, O) the penalty stiffness each obstacle was solved
     with [N/m per m]; ``penetration`` (B, O) the deepest penetration of each [m]; a rigid one beyond
     ``contact_tolerance`` flags PENETRATION. With a constrained tip: tip_reaction (B, 3) the force it takes [N]
-    (world).
+    (world). segments (B,) int: the segments of multiple shooting each rod was solved in (1: single shooting;
+    ``StaticOptions.segments``); a split rod's sensitivities are NaN and its stability is not assessed.
 
     Per tendon (B, K): tendon_tension_base (at the motor side, s = 0) and tendon_tension_end (just before its
     termination) [N]. With tendon states (displacement control or friction; None otherwise): tendon_path_length,
@@ -154,6 +156,7 @@ class StaticSolution(RodRows):
     contact_force: np.ndarray | None = None
     contact_gap: np.ndarray | None = None
     contact_stiffness: np.ndarray | None = None
+    segments: np.ndarray | None = None
 
     @property
     def stable(self) -> np.ndarray | None:
@@ -175,10 +178,16 @@ class StaticSolution(RodRows):
             return None
         return ["stable" if i == 0 else f"unstable: {i} directions" if i > 0 else
                 "not assessed: not converged" if not ok else f"not assessed: {self.stability_note}" if self.stability_note
+                else "not assessed: solved by multiple shooting (the test integrates base to tip)" if split
                 else "not assessed: the phases turn too fast for the grid (raise nodes)" if np.isnan(margin)
                 else "not assessed: the wires' stiffness is singular here (a bifurcation point)"
-                for i, ok, margin in zip(self.stability_index.tolist(), self.converged.tolist(),
-                                         self.stability_margin.tolist())]
+                for i, ok, margin, split in zip(self.stability_index.tolist(), self.converged.tolist(),
+                                                self.stability_margin.tolist(), (self.segments_or_one > 1).tolist())]
+
+    @property
+    def segments_or_one(self) -> np.ndarray:
+        """(B,) ``segments``, 1 where it is not reported (the closed-form model)."""
+        return np.ones(len(self.converged), dtype=int) if self.segments is None else self.segments
 
     @property
     def penetration(self) -> np.ndarray | None:
@@ -257,10 +266,9 @@ def _constant_curvature(robot: Robot, tau: np.ndarray, opts: StaticOptions) -> S
 
 
 class StaticProblem:
-    """The device arrays of one robot batch at one shape (B rods, options, device), built
-    once and reused by every solve of that shape: the tables, and per CPU thread the
-    Model / Control / State / Work of its rods (tdcr_warp.core.solver.Shooting). ``mode``
-    "reference": every tendon in tension control, frictionless (tdcr_warp.core.build.scene_features)."""
+    """The device arrays of one robot batch at one shape (B rods, options, device), built once and reused by
+    every solve of that shape: the tables, and per CPU thread the Model / Control / State / Work of its rods
+    (Shooting). ``mode`` "reference": every tendon in tension control, frictionless (build.scene_features)."""
 
     def __init__(self, robot: Robot, B: int, opts: StaticOptions, device, mode: str = "solve"):
         self.robot, self.B, self.opts, self.device = robot, B, opts, device
@@ -275,7 +283,8 @@ class StaticProblem:
         self.disp = np.flatnonzero(self.tables.tmode[0] >= 0)  # the displaced tendons
         self.j_of = 6 + self.tables.tmode[0, self.disp]  # their shooting unknowns
         self.assessor = Assessor(robot, self.tables, opts)
-        self.contacts = chunk_contacts(robot, self.tables, self.solvers, self.chunks)
+        self.armed = _armed_segments(self.tables, opts)  # multiple shooting's count (None: as needed; 1: never)
+        self.contacts = chunk_contacts(robot, self.tables, self.solvers, self.chunks, self.armed)
         self.lock = threading.Lock()
         self._reference = None
         self._unloaded: tuple | None = None  # the rods' unloaded Jacobians and their cost (unloaded_jacobians)
@@ -386,9 +395,7 @@ class StaticProblem:
                                   redo, steps, newton, None if avail is None else (free, avail))
         if job.free is not None and not sh.converged().all():
             _hold(sh, tables, lo, hi, x0, newton)
-        if contact:
-            contact.settle(x0, newton)
-            contact.stiffen(self.opts.contact_tolerance, self.opts.contact_steps, newton)
+        segments = _contact_and_split(self, sh, lo, hi, contact, x0, newton)
         if len(self.disp):
             settle_slack(sh, taut, self.disp, self.j_of, newton)
         if job.profile is not None:
@@ -396,17 +403,17 @@ class StaticProblem:
         if job.spent is not None:  # the integrations of the unloaded Jacobians count, where they were made
             it, sn = sh.counts()
             sh.set_counts(it, sn + job.spent[lo:hi])
-        res = sh.results()
+        res = sh.results() | {"segments": segments}
         if contact:
             res |= contact.results(self.opts.contact_tolerance, res["status"])
         if job.linear or job.stability != "off":
             rods = (sh, lo, hi, job.tau[lo:hi], taut)
             with contact.near_only(res["contact_gap"]) if contact else nullcontext():  # probes: double steps
                 res |= self.assessor.assess(*rods, res, job.ptables, job.linear, job.stability)
+            res = _not_linearised(res, segments > 1)
             if job.stability == "stable":
                 res = self.assessor.stable_branch(*rods, res, job.ptables, job.linear, newton, self.disp, self.j_of)
         return res
-
 
 @dataclass
 class _Job:
@@ -432,6 +439,64 @@ class _Job:
     stability: str
     stiffness: np.ndarray | None = None
     free: np.ndarray | None = None
+
+
+def _contact_and_split(problem: StaticProblem, sh: Shooting, lo: int, hi: int, contact: Contact | None,
+                       x0: np.ndarray, newton: dict) -> np.ndarray:
+    """The contact of a solved chunk settled and stiffened (tdcr_warp/physics/contact.py; a rod
+    single shooting cannot carry up the climb split), then multiple shooting
+    (``StaticOptions.segments``, tdcr_warp/physics/segments.py): the rods whose contact is still
+    unresolved (None), or every converged rod (M), solved again in segments from their last
+    shapes and stiffened on; returns (b,) the segments each rod ends with (1: single shooting)."""
+    if contact:
+        contact.settle(x0, newton)
+        contact.stiffen(problem.opts.contact_tolerance, problem.opts.contact_steps, newton)
+    count, b = problem.armed, hi - lo
+    ok, single = sh.converged(), np.ones(b, dtype=int)
+    if count == 1 or (count is None and not contact):
+        return single
+    tol = problem.opts.contact_tolerance
+    rods = ok if count else ok & ((contact.results(tol, sh.status())["status"] & layout.PENETRATION) != 0)
+    if contact:
+        rods &= ~contact.split_mask()  # (split in a climb already)
+        if rods.any():
+            contact.split_stiffen(rods, tol, problem.opts.contact_steps, newton)
+        return np.maximum(contact.split_count(), 1)
+    if not rods.any():
+        return single
+    iters, shots = sh.counts()
+    seg = Segments(sh, problem.tables.rows("rod", lo, hi), count, 0.0)
+    seg.from_nodes(sh.nodes, rods)
+    seg.solve_into(rods, newton["tol"], newton["max_iter"])
+    it, sn = sh.counts()
+    sh.set_counts(np.where(rods, it + iters, iters), np.where(rods, sn + shots, shots))
+    return np.where(rods, count, 1)
+
+
+def _armed_segments(tables: Tables, opts: StaticOptions) -> int | None:
+    """``StaticOptions.segments`` where multiple shooting covers the variant (no tendon states,
+    constrained tip or disks), else 1; checked against the variant and the grid (InputError)."""
+    f = tables.features
+    segmentable = not (f.tendons or f.tip or opts.model == "disks")
+    if opts.segments is not None and opts.segments > opts.nodes:
+        raise InputError(f"solver segments must be at most nodes = {opts.nodes}, got {opts.segments}")
+    if opts.segments not in (None, 1) and not segmentable:
+        raise InputError(f"solver segments = {opts.segments} (multiple shooting) needs a robot without "
+                         "displacement control, friction, a constrained tip or disks")
+    return opts.segments if segmentable else 1
+
+
+def _not_linearised(res: dict, rods: np.ndarray) -> dict:
+    """``res`` with the sensitivities and the stability verdict of ``rods`` (b,) marked not
+    assessed (NaN, index -1): their probes integrate base to tip, which multiple shooting
+    split them to avoid."""
+    for k in ("tip_jacobian", "tip_compliance", "tension_jacobian", "slack_jacobian", "parameter_jacobian",
+              "lagrangian_error", "stability_margin"):
+        if k in res:
+            res[k] = np.where(rods.reshape((-1,) + (1,) * (res[k].ndim - 1)), np.nan, res[k])
+    if "stability_index" in res:
+        res["stability_index"] = np.where(rods, -1, res["stability_index"])
+    return res
 
 
 def _stick_slip(problem: StaticProblem, sh: Shooting, slip: np.ndarray, profile: np.ndarray, x0: np.ndarray,

@@ -1,0 +1,84 @@
+"""Multiple shooting in statics: long line contacts, beyond single shooting, against the closed
+form of a rod lying on a wall; the same answers as single shooting where both work; global
+balance; the independence of the rods of a batch; what a split rod reports and what is refused."""
+
+import numpy as np
+import pytest
+
+from tdcr_warp.kernels import layout
+from tdcr_warp.model.robot import InputError, Obstacle, Robot, Tendon
+from tdcr_warp.physics.statics import solve_static
+
+# a nitinol wire sagging under its own weight (gravity -x): w = rho A g
+ROD = dict(radius=0.5e-3, youngs_modulus=60e9, density=6450.0, gravity=(-9.81, 0.0, 0.0))
+W = 6450.0 * np.pi * 0.5e-3**2 * 9.81  # [N/m]
+EI = 60e9 * np.pi * 0.5e-3**4 / 4  # [N m^2]
+NONE = np.zeros((1, 0))
+
+
+def in_tube(L: float, clearance) -> Robot:
+    """The wire, clamped on the axis of a horizontal straight tube of the given clearance [m]."""
+    return Robot(length=L, obstacles=[Obstacle("tube", start=(0, 0, -0.01), end=(0, 0, L + 0.01),
+                                               radius=0.5e-3 + np.asarray(clearance, dtype=float))], **ROD)
+
+
+def test_long_line_contact_matches_the_closed_form():
+    """A 1 m wire in a tube of 0.2 mm clearance lies on the wall from a = (72 EI c / w)^(1/4)
+    = 0.171 m to the tip (tests/test_contact.py derives the reactions). At the stiffness that
+    holds 0.01 r, beta l ~ 26 along the contact: single shooting is flagged PENETRATION (it
+    cannot climb there); by default the rod is split and meets the closed form: total reaction
+    w (L - 2a/3) to 2e-4 (measured 1.1e-4), its moment about the base to 1e-4 (2.4e-5), the
+    contact beginning within three intervals of a (2.1). Force balance with the contact forces: 1e-10
+    of the contact forces (the segments' gaps are closed to tol, not to round-off; 4e-11)."""
+    L, c = 1.0, 0.2e-3
+    a = (72 * EI * c / W) ** 0.25
+    single = solve_static(in_tube(L, c), NONE, nodes=100, segments=1)
+    assert single.converged[0] and single.status[0] & layout.PENETRATION and not single.success[0]
+    sol = solve_static(in_tube(L, c), NONE, nodes=100)
+    assert sol.success[0] and sol.segments[0] > 1
+    assert sol.penetration[0, 0] <= 0.01 * 0.5e-3
+    F = sol.contact_force[0, :, 0]
+    assert abs(F.sum() / (W * (L - 2 * a / 3)) - 1) < 2e-4
+    assert abs((F * sol.positions[0, :, 2]).sum() / (W * a * a / 3 + W * (L * L - a * a) / 2) - 1) < 1e-4
+    assert abs(sol.s[0, np.flatnonzero(F > 0)[0]] - a) < 3 * L / 100  # the nodal law spreads the point reaction
+    external = np.array([-W * L, 0.0, 0.0]) + sol.contact_force[0].sum(axis=0)
+    assert np.abs(sol.base_wrench[0, :3] - external).max() < 1e-10 * np.abs(sol.contact_force[0]).sum()
+    # what a split rod reports: no stability verdict or sensitivities from base-to-tip probes
+    assert sol.stability_reasons()[0].startswith("not assessed: solved by multiple shooting")
+    assert sol.orthogonality_error[0] < 1e-12
+
+
+def test_segments_give_single_shootings_answers():
+    """Where single shooting resolves the contact (a tip force pressing a rod on a sphere and a
+    plane), every rod in 4 segments gives its answer: shapes to 1e-12 m (measured 2.4e-14)."""
+    obstacles = [Obstacle("sphere", center=(0.0235, 0.0, 0.16), radius=0.02),
+                 Obstacle("plane", point=(0.0, -0.0025, 0.0), normal=(0.0, 1.0, 0.0))]
+    rob = Robot(length=0.25, radius=0.5e-3, youngs_modulus=60e9, tip_force=(0.01, -0.002, 0.0), obstacles=obstacles)
+    one = solve_static(rob, NONE, nodes=60, segments=1)
+    four = solve_static(rob, NONE, nodes=60, segments=4, sensitivities=True)
+    assert one.success[0] and four.success[0] and four.segments[0] == 4 and one.segments[0] == 1
+    assert np.abs(one.positions - four.positions).max() < 1e-12
+    assert np.isnan(four.tip_jacobian).all() and four.stability_index[0] == -1
+
+
+def test_rods_of_a_batch_are_independent_when_split():
+    """Three wires: one split (0.2 mm clearance), one whose tip touches (5 cm: single shooting
+    resolves it), one clear of the wall (50 cm): each equals the rod alone, bit for bit."""
+    clearance = np.array([0.2e-3, 0.05, 0.5])
+    batch = solve_static(in_tube(0.5, clearance), np.zeros((3, 0)), nodes=60)
+    assert batch.success.all() and batch.segments[0] > 1 and (batch.segments[1:] == 1).all()
+    for b in range(3):
+        alone = solve_static(in_tube(0.5, clearance[b]), NONE, nodes=60)
+        for name in ("positions", "n", "m", "contact_force", "contact_stiffness", "iterations", "segments"):
+            assert np.array_equal(getattr(batch, name)[b], getattr(alone, name)[0]), (b, name)
+
+
+def test_segments_refused_where_not_built():
+    """A count beyond the grid, or multiple shooting with tendon states: one-line errors."""
+    with pytest.raises(InputError, match="segments must be at most nodes = 20"):
+        solve_static(in_tube(0.5, 1e-3), NONE, nodes=20, segments=21)
+    with pytest.raises(InputError, match="segments must be a positive integer"):
+        solve_static(in_tube(0.5, 1e-3), NONE, nodes=20, segments=0)
+    displaced = Robot(length=0.2, tendons=[Tendon(offset=(0.01, 0.0), control="displacement")])
+    with pytest.raises(InputError, match="multiple shooting"):
+        solve_static(displaced, [[0.0]], nodes=20, segments=4)
