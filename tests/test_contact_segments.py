@@ -5,6 +5,7 @@ balance; the independence of the rods of a batch; what a split rod reports and w
 import numpy as np
 import pytest
 
+import tdcr_warp as tw
 from tdcr_warp.kernels import layout
 from tdcr_warp.model.robot import InputError, Obstacle, Robot, Tendon
 from tdcr_warp.physics.statics import solve_static
@@ -82,3 +83,10 @@ def test_segments_refused_where_not_built():
     displaced = Robot(length=0.2, tendons=[Tendon(offset=(0.01, 0.0), control="displacement")])
     with pytest.raises(InputError, match="multiple shooting"):
         solve_static(displaced, [[0.0]], nodes=20, segments=4)
+
+
+def test_dynamics_refuses_a_split_static_start():
+    """Dynamics with obstacles does not split rods yet: a static start that needed it is a
+    one-line error, not steps that fail."""
+    with pytest.raises(InputError, match="needed multiple shooting"):
+        tw.Simulator(in_tube(1.0, 0.2e-3), NONE, dt=1e-3, nodes=100)

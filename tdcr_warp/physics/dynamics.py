@@ -112,6 +112,10 @@ def _static_start(robot: Robot, tau: np.ndarray, displacements, initial: StaticS
     if len(bad):
         raise InputError(f"the static start did not converge for rods {bad[:10].tolist()} "
                          f"({static.failure_reasons()[bad[0]]})")
+    split = np.flatnonzero(static.segments_or_one > 1) if robot.obstacles else []
+    if len(split):
+        raise InputError(f"the static start of rods {split[:10].tolist()} needed multiple shooting (a long line "
+                         "contact), which dynamics with obstacles does not have yet")
     tables = Tables.of(robot, opts.nodes, opts.specialize, opts.kink_loads)
     if tables.grid.shape[1] != static.s.shape[1]:
         raise InputError("initial: its node count differs from the simulation's")
