@@ -69,7 +69,7 @@ SEED_DAMPING = dict(damping_bending=(0.008, 0.008, 0.008), drag=(0.01, 0.01, 0.0
 CONTROL_KEYS = ("method", "input_model", "gain_c", "gain_k", "epsilon", "phi", "tension_max", "model_every")
 
 # field -> what it measures; "flag" must be equal, "count" is informational
-KINDS = {"positions": "position", "tip_position": "position", "target": "position", "n": "force",
+KINDS = {"positions": "position", "tip_position": "position", "target": "position", "n": "force", "contact_force": "force",
          "tensions": "force", "m": "moment", "converged": "flag", "failed_step": "flag",
          "iterations": "count", "status": "count"}
 MEASURES = ("position", "force", "moment")
@@ -167,6 +167,18 @@ def failing_static(device):
     E[0], tau[0] = 190e9, 3.0
     rob = tw.Robot(length=0.5, youngs_modulus=E, tendons=[tw.Tendon(offset=(0.01, 0.0))], gravity=(0, -9.81, 0))
     return rob, static_fields(tw.solve_static(rob, tau, nodes=20, max_iter=8, continuation=2, device=device))
+
+
+def contact_static(device):
+    """Rods pulled toward a rigid plane and a compliant sphere (experiments/bench_contact.py's
+    robot), each contact short enough for single shooting."""
+    offsets = [(0.01, 0.0), (0.0, 0.01), (-0.01, 0.0), (0.0, -0.01)]
+    rob = tw.Robot(length=0.2, radius=0.5e-3, youngs_modulus=60e9, density=6450.0, gravity=(0, 0, -9.81),
+                   tendons=[tw.Tendon(offset=o) for o in offsets],
+                   obstacles=[tw.Obstacle("plane", point=(-0.05, 0.0, 0.0), normal=(1.0, 0.0, 0.0)),
+                              tw.Obstacle("sphere", center=(0.0, 0.06, 0.15), radius=0.02, stiffness=1e5)])
+    sol = tw.solve_static(rob, uniform(16, 4, seed=8), nodes=20, device=device)
+    return rob, static_fields(sol) | {"contact_force": sol.contact_force}
 
 
 def warm_static(device):
@@ -317,6 +329,7 @@ CASES = [
          heavy_static),
     Case("static/failing_rods", "7 soft rods (E 1e5 Pa) at 5 kN that fail beside a converging one, max_iter 8",
          failing_static),
+    Case("static/contact", "16 rows U[0, 3] N toward a rigid plane and a compliant sphere, N = 20", contact_static),
     Case("static/warm_start", "16 rows U[0, 3] N + 0.05 N from the solution at the rows, N = 20", warm_static),
     Case("static/tendons_displacement", "report robot by displacement, 16 rows U[-3, 4] mm, slack where released",
          displaced_static),

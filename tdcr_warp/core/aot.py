@@ -88,8 +88,8 @@ def _modules(v: Variant):
         mods.append(make_history_kernels(dtype).end_step.module)
     if v.features.contact:  # the contact outputs (one module for every precision and variant)
         mods.append(make_contact_kernel(dtype, v.dynamic).module)
-    if segmented(v):  # multiple shooting (one module likewise)
-        mods.append(make_segment_kernel(dtype, v.integrator, v.model, v.dynamic, v.rod, v.features).module)
+    if segmented(v) is not None:  # multiple shooting (one module likewise)
+        mods.append(make_segment_kernel(dtype, v.integrator, v.model, v.dynamic, v.rod, segmented(v)).module)
     return mods
 
 
@@ -106,9 +106,16 @@ def compile_variant(v: Variant, arch: int, out_dir: str) -> list[tuple[str, floa
     return done
 
 
-def segmented(v: Variant) -> bool:
-    """Whether the variant's dynamics may split a rod into segments (tdcr_warp/physics/segments.py)."""
-    return v.dynamic and not (v.features.tendons or v.features.tip or v.features.contact) and v.model != "disks"
+def segmented(v: Variant):
+    """The features of the variant's multiple-shooting kernel (tdcr_warp/physics/segments.py), or
+    None: dynamics splits rods without tendon states, a held tip or obstacles; statics splits rods
+    on obstacles (their scene without the held tip stands in for a held-tip variant)."""
+    f = v.features
+    if v.model == "disks" or f.tendons:
+        return None
+    if v.dynamic:
+        return None if f.tip or f.contact else f
+    return f._replace(tip=0) if f.contact else None
 
 
 def group(module: str) -> str:
