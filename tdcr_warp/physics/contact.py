@@ -15,6 +15,11 @@ then the rods that touch climb back, the others take the stiffness at once (``Co
 and a rod that failed restarts 1e-6 times as stiff and climbs.
 Each rod's schedule is its own: a rod's answer never depends on its neighbours in the batch. A rod still beyond the tolerance, or
 clamped inside an obstacle, is flagged ``PENETRATION``.
+
+A long line contact defeats single shooting (a start error grows like exp(2 beta l), beta =
+(k / 4 E I)^(1/4)): where armed (statics), a rod whose contact would grow one beyond 1e6 at the
+next stiffness, or whose climb step fails twice where it grows beyond 1e3, or that ends flagged,
+is split and climbs on by multiple shooting (``ContactSplitting``).
 """
 
 from __future__ import annotations
@@ -160,12 +165,13 @@ class ContactSplitting(ContactState):
 
     segs: dict | None = None  # {M: Segments}: multiple shooting in M segments
     count: np.ndarray | None = None  # (b,) int: the segments each rod is split into (0: single shooting)
-    armed: tuple | None = None  # (True, count): a rod single shooting fails is split (count: None or M)
+    armed: bool = False  # split the rods single shooting cannot carry
+    fixed: int | None = None  # the count of every split (None: as many as each rod needs)
 
     def arm(self, segments: int | None) -> None:
-        """Split the rods single shooting fails in a climb (``StaticOptions.segments``: None: as
-        many segments as they need; M; 1: never)."""
-        self.armed = None if segments == 1 else (True, segments)
+        """Split the rods single shooting cannot carry up a climb (``StaticOptions.segments``:
+        None: into as many segments as each needs; M: into M; 1: never)."""
+        self.armed, self.fixed = segments != 1, segments
 
     def split_mask(self) -> np.ndarray:
         """(b,) bool: the rods multiple shooting solves."""
@@ -195,8 +201,8 @@ class ContactSplitting(ContactState):
         """(b,) the segments each rod needs at ``stiffness`` (b, O) (``contact_segments``, or the
         count armed; within 2..N)."""
         sh = self.sh
-        if self.armed[1]:
-            need = np.full(sh.b, self.armed[1])
+        if self.fixed:
+            need = np.full(sh.b, self.fixed)
         else:
             need = contact_segments(np.broadcast_to(self.rod, (sh.b, self.rod.shape[1])), stiffness, self._precision)
         return np.clip(need, 2, sh.n1 - 1)
@@ -252,7 +258,9 @@ class Contact(ContactSplitting):
         """The obstacles of ``rods`` from their stiffness to ``goal`` (b, O), each rod from its last
         solution by factors of up to STEP, with Broyden's updates; a step that fails is taken back
         (stiffness and solution) and tried again with a Jacobian at every iterate, and if that
-        fails too at the square root of its factor, down to MIN_STEP, where the rod stays."""
+        fails too at the square root of its factor, down to MIN_STEP, where the rod stays. Where
+        armed, a rod single shooting cannot carry is split first (``_split_ahead``), or after two
+        failures takes the same step again by multiple shooting."""
         sh, ok = self.sh, rods.copy()
         step, exact = np.full(sh.b, STEP), np.zeros(sh.b, dtype=bool)
         for _ in range(MAX_TRIES):
