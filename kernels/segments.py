@@ -22,6 +22,7 @@ import functools
 
 import warp as wp
 
+from .drivers import module_names
 from .integration import make_nodes, make_residual
 from .nodes import make_rod_funcs
 from .stepping import make_interval
@@ -61,7 +62,9 @@ def make_segment_kernel(dtype, integrator: str, model: str, dynamic: bool, rod: 
         a[b, c, i + 1] = v[1]
         a[b, c, i + 2] = v[2]
 
-    @wp.kernel
+    module = module_names(dtype, integrator, model, dynamic, rod, features)["fused"].replace("_fused_", "_segments_")
+
+    @wp.kernel(module=module, enable_backward=False)  # a module of its own per variant (as the drivers')
     def segment_ends(md: Model, ct: Control, sp: Step, rods: wp.array(dtype=int), start: wp.array3d(dtype=dtype),
                      seg: wp.array(dtype=int), bounds: wp.array(dtype=int), store: int, out: Nodes,
                      end: wp.array3d(dtype=dtype), tip: wp.array3d(dtype=dtype)):

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import itertools
+import multiprocessing
 import os
 import sys
 import tempfile
@@ -126,7 +127,9 @@ def group(module: str) -> str:
 def compile_all(variants: list[Variant], arch: int, out_dir: str, jobs: int, log=print) -> list:
     """compile_variant for each variant, ``jobs`` processes at a time (NVRTC is single-threaded)."""
     results = []
-    with ProcessPoolExecutor(max(1, jobs)) as pool:
+    # spawned, not forked: a forked worker would inherit every kernel its parent has built into
+    # the shared modules (in the test suite, several times the covering set's)
+    with ProcessPoolExecutor(max(1, jobs), mp_context=multiprocessing.get_context("spawn")) as pool:
         futures = [(v, pool.submit(compile_variant, v, arch, out_dir)) for v in variants]
         for v, fut in futures:
             mods = fut.result()

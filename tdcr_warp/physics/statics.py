@@ -415,6 +415,7 @@ class StaticProblem:
                 res = self.assessor.stable_branch(*rods, res, job.ptables, job.linear, newton, self.disp, self.j_of)
         return res
 
+
 @dataclass
 class _Job:
     """One solve of a StaticProblem's batch, as every chunk takes it: tensions tau (B, K) [N], the
