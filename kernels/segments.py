@@ -29,15 +29,21 @@ from .stepping import make_interval
 from .structs import tendon_vectors
 from .variants import STAGES, Features
 
-__all__ = ["STATE", "make_segment_kernel"]
+__all__ = ["STATE", "make_segment_kernel", "segmentable"]
 
 STATE = 24  # p (3), R (9, row-major), n (3), m (3), q (3), w (3)
+
+
+def segmentable(model: str, features: Features) -> bool:
+    """Whether a variant can be segmented: no tendon states, constrained tip or disks (only the
+    rod's own state crosses a segment boundary)."""
+    return not (features.tendons or features.tip or model == "disks")
 
 
 @functools.cache
 def make_segment_kernel(dtype, integrator: str, model: str, dynamic: bool, rod: str, features: Features):
     """The kernel ``segment_ends`` of one variant (without tendon states or a constrained tip)."""
-    if features.tendons or features.tip or model == "disks":
+    if not segmentable(model, features):
         raise ValueError("multiple shooting needs a variant without tendon states, a constrained tip or disks")
     vec3 = wp.types.vector(3, dtype)
     mat33 = wp.types.matrix((3, 3), dtype)

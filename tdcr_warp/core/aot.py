@@ -111,12 +111,12 @@ def segmented(v: Variant):
     """The features of the variant's multiple-shooting kernel (tdcr_warp/physics/segments.py), or
     None: dynamics splits rods without tendon states, a held tip or obstacles; statics splits rods
     on obstacles (their scene without the held tip stands in for a held-tip variant)."""
+    from tdcr_warp.kernels.segments import segmentable
+
     f = v.features
-    if v.model == "disks" or f.tendons:
-        return None
     if v.dynamic:
-        return None if f.tip or f.contact else f
-    return f._replace(tip=0) if f.contact else None
+        return f if segmentable(v.model, f) and not f.contact else None
+    return f._replace(tip=0) if f.contact and segmentable(v.model, f._replace(tip=0)) else None
 
 
 def group(module: str) -> str:

@@ -24,6 +24,7 @@ from tdcr_warp.core.progress import Progress
 from tdcr_warp.core.solver import Shooting
 from tdcr_warp.kernels import layout
 from tdcr_warp.kernels.history import make_history_kernels
+from tdcr_warp.kernels.segments import segmentable
 from tdcr_warp.model.options import StaticOptions
 from tdcr_warp.model.robot import InputError, Robot, check_command, check_tensions, real_array, require_memory
 from tdcr_warp.physics.contact import chunk_contacts, penetration
@@ -320,7 +321,7 @@ def _segment_count(sim: Simulator, segments: int | None) -> int:
     where single shooting is at risk and the variant allows them (no tendon states, held tip
     or obstacles yet: else 1, warned where dt is beyond single shooting)."""
     f, n_int = sim.tables.features, sim.tables.grid.shape[1] - 1
-    allowed = not (f.tendons or f.tip or f.contact)
+    allowed = segmentable(sim.opts.model, f) and not f.contact
     if segments is None:
         need = segments_needed(sim.robot, sim.opts.precision, sim.dt, sim.coef[0] * sim.dt)
         segments = min(need, n_int) if allowed and need > 1 else 1

@@ -107,6 +107,11 @@ def _vee(a: np.ndarray) -> np.ndarray:
                           axis=-1)
 
 
+def _orthogonality(R: np.ndarray) -> np.ndarray:
+    """(b,) max |R^T R - I| over the nodes of rotations R (b, N+1, 3, 3)."""
+    return np.abs(np.swapaxes(R, -1, -2) @ R - np.eye(3)).max(axis=(1, 2, 3))
+
+
 def _norm(a: np.ndarray) -> np.ndarray:
     """(b,) |a| of each row of a (b, n); inf where a trial overflowed (NaN or inf entries)."""
     with np.errstate(over="ignore", invalid="ignore"):
@@ -346,8 +351,8 @@ class Segments(SegmentUnknowns):
         ok, limited, iters, size = self.solve(rods, tol, max_iter)
         status = np.where(ok, layout.CONVERGED, np.where(np.isfinite(size), layout.MAX_ITER, layout.NONFINITE))
         status = np.where(limited, status | layout.PRECISION_LIMITED, status)
-        R = sh.host(sh.nodes.R).get(np.float64)
-        orth = np.abs(np.swapaxes(R, -1, -2) @ R - np.eye(3)).max(axis=(1, 2, 3))
+        orth = np.zeros(sh.b)  # (the segments' kernel keeps no orthogonality error)
+        orth[rods] = _orthogonality(sh.host(sh.nodes.R).get(np.float64)[rods])
         for arr, values in ((sh.newton.status, status), (sh.newton.x, self.z[:, :6]), (sh.newton.iters, iters),
                             (sh.newton.n_shoot, np.ceil(self.spent)), (sh.newton.resnorm, size),
                             (sh.nodes.orth, orth)):

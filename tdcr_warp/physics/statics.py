@@ -25,6 +25,7 @@ from tdcr_warp.core.homotopy import continuation_steps, holding_path, load_conti
 from tdcr_warp.core.parallel import parallel, split
 from tdcr_warp.core.solver import Shooting, first_jacobian
 from tdcr_warp.kernels import layout
+from tdcr_warp.kernels.segments import segmentable as kernel_segmentable
 from tdcr_warp.model.options import StaticOptions, describe_status
 from tdcr_warp.model.robot import InputError, Robot, check_command, check_slip, real_array, require_memory
 from tdcr_warp.physics.assessment import Assessor
@@ -477,8 +478,7 @@ def _contact_and_split(problem: StaticProblem, sh: Shooting, lo: int, hi: int, c
 def _armed_segments(tables: Tables, opts: StaticOptions) -> int | None:
     """``StaticOptions.segments`` where multiple shooting covers the variant (no tendon states,
     constrained tip or disks), else 1; checked against the variant and the grid (InputError)."""
-    f = tables.features
-    segmentable = not (f.tendons or f.tip or opts.model == "disks")
+    segmentable = kernel_segmentable(opts.model, tables.features)
     if opts.segments is not None and opts.segments > opts.nodes:
         raise InputError(f"solver segments must be at most nodes = {opts.nodes}, got {opts.segments}")
     if opts.segments not in (None, 1) and not segmentable:
