@@ -71,7 +71,7 @@ CONTROL_KEYS = ("method", "input_model", "gain_c", "gain_k", "epsilon", "phi", "
 # field -> what it measures; "flag" must be equal, "count" is informational
 KINDS = {"positions": "position", "tip_position": "position", "target": "position", "n": "force", "contact_force": "force",
          "tensions": "force", "m": "moment", "converged": "flag", "failed_step": "flag",
-         "iterations": "count", "status": "count"}
+         "iterations": "count", "status": "count", "segments": "count"}
 MEASURES = ("position", "force", "moment")
 
 
@@ -181,6 +181,16 @@ def contact_static(device):
     return rob, static_fields(sol) | {"contact_force": sol.contact_force}
 
 
+def long_contact_static(device):
+    """A wire sagging onto the wall of a straight tube over most of its 0.5 m (experiments/
+    long_contact.py): split into segments during the contact stiffness climb."""
+    tube = tw.Obstacle("tube", start=(0, 0, -0.01), end=(0, 0, 0.51), radius=0.7e-3)
+    rob = tw.Robot(length=0.5, radius=0.5e-3, youngs_modulus=60e9, density=6450.0, gravity=(-9.81, 0.0, 0.0),
+                   obstacles=[tube])
+    sol = tw.solve_static(rob, np.zeros((1, 0)), nodes=100, device=device)
+    return rob, static_fields(sol) | {"contact_force": sol.contact_force, "segments": sol.segments}
+
+
 def warm_static(device):
     rob, tau = seed_robot(), uniform(16, 4, seed=6)
     cold = tw.solve_static(rob, tau, nodes=20, device=device)
@@ -284,6 +294,16 @@ def small_dt_dynamics(device):
     return rob, trajectory_fields(sim.simulate(np.tile([[1.0, 0.0, 0.0, 0.0]], (8, 1)), 8, shapes_every=4))
 
 
+def split_dynamics(device):
+    """The rods of small_dt_dynamics by default: the rods that single shooting fails are split
+    into segments (multiple shooting), and their steps converge."""
+    rob = seed_robot(youngs_modulus=np.array([190e9, 1e12, 5e12]))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the single-shooting warning: expected here
+        sim = tw.Simulator(rob, np.zeros((3, 4)), dt=2e-4, alpha=-0.2, nodes=20, device=device)
+    return rob, trajectory_fields(sim.simulate(np.tile([[1.0, 0.0, 0.0, 0.0]], (8, 1)), 8, shapes_every=4))
+
+
 # --- control -------------------------------------------------------------------------------------
 
 def scene_control(stem: str, steps: int = 20) -> Case:
@@ -330,6 +350,8 @@ CASES = [
     Case("static/failing_rods", "7 soft rods (E 1e5 Pa) at 5 kN that fail beside a converging one, max_iter 8",
          failing_static),
     Case("static/contact", "16 rows U[0, 3] N toward a rigid plane and a compliant sphere, N = 20", contact_static),
+    Case("static/long_contact", "a wire sagging onto a straight tube's wall, L = 0.5 m, N = 100 (split into "
+         "segments)", long_contact_static),
     Case("static/warm_start", "16 rows U[0, 3] N + 0.05 N from the solution at the rows, N = 20", warm_static),
     Case("static/tendons_displacement", "report robot by displacement, 16 rows U[-3, 4] mm, slack where released",
          displaced_static),
@@ -349,6 +371,8 @@ CASES = [
          soft_dynamics),
     Case("dynamics/flagged_small_dt", "3 rods (E 190e9, 1e12, 5e12 Pa) at dt = 2e-4 s: two flagged, 8 steps",
          small_dt_dynamics),
+    Case("dynamics/split_small_dt", "the rods of flagged_small_dt by default: the failing rods split, 8 steps",
+         split_dynamics),
     scene_control("our_control"),
     scene_control("seed_control"),
     Case("dynamics/tendons", "displaced pair with mu = 0.2 pulled at 5 mm/s, 20 steps", tendon_dynamics),
