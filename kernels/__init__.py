@@ -39,6 +39,10 @@ family's file and keyed only by what it needs; a feature a scene lacks compiles 
     evaluate / jacobian kernels                                variant and driver)
   make_shooting_kernels                          shooting.py   one variant's kernels, for the host
   end_step                                       history.py    BDF-alpha history between steps
-
-Contact is not modelled.
+  surface, contact_force, the contact_nodes      contact.py    obstacles: the penalty law at a node
+    kernel                                                     and the contact outputs
+  segmentable, the segment_ends kernel           segments.py   multiple shooting: a segment
+                                                               integrated from a given start state
+  band_widths, the band_solve kernel             banded.py     multiple shooting's Newton steps:
+                                                               banded LU, one system per thread
 """

@@ -23,7 +23,7 @@ def test_every_kernel_option_builds_for_sm90(tmp_path):
     for v, mods in results:
         groups = {group(name) for name, _, _ in mods}
         assert groups == {"fused", "probes", "evaluate"} | ({"history"} if v.dynamic else set()) | (
-            {"contact"} if v.features.contact else set()) | ({"segments"} if segmented(v) is not None else set()), v
+            {"contact"} if v.features.contact else set()) | ({"segments", "banded"} if segmented(v) is not None else set()), v
         for name, _, files in mods:
             assert files, f"{v}: {name} built nothing"
             for f in files:

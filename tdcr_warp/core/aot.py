@@ -5,8 +5,10 @@ carries NVRTC), to show that every kernel variant builds for a GPU and to ship c
 
 A variant is one (precision, integrator, tendon model, rod model, statics/dynamics, feature
 set); each builds three Warp modules (fused driver, probe driver, evaluation) plus the
-BDF-alpha history module of its precision. Without --all a covering set is built: every value
-of every option at least once, the general kernel (all features) and the leanest (none).
+BDF-alpha history module of its precision, the contact outputs' where it has obstacles, and
+where it can be split into segments the segments' module and the banded Newton solve's. Without
+--all a covering set is built: every value of every option at least once, the general kernel
+(all features) and the leanest (none).
 """
 
 from __future__ import annotations
@@ -77,6 +79,7 @@ def covering_variants() -> list[Variant]:
 def _modules(v: Variant):
     import warp as wp
 
+    from tdcr_warp.kernels.banded import band_solve
     from tdcr_warp.kernels.contact import make_contact_kernel
     from tdcr_warp.kernels.history import make_history_kernels
     from tdcr_warp.kernels.segments import make_segment_kernel
@@ -89,8 +92,9 @@ def _modules(v: Variant):
         mods.append(make_history_kernels(dtype).end_step.module)
     if v.features.contact:  # the contact outputs (one module for every precision and variant)
         mods.append(make_contact_kernel(dtype, v.dynamic).module)
-    if segmented(v) is not None:  # multiple shooting (one module likewise)
+    if segmented(v) is not None:  # multiple shooting: its segments, and the banded Newton solve (one module)
         mods.append(make_segment_kernel(dtype, v.integrator, v.model, v.dynamic, v.rod, segmented(v)).module)
+        mods.append(band_solve.module)
     return mods
 
 
@@ -120,7 +124,7 @@ def segmented(v: Variant):
 
 
 def group(module: str) -> str:
-    """A built module's kind: fused, probes, evaluate, history, contact or segments."""
+    """A built module's kind: fused, probes, evaluate, history, contact, segments or banded."""
     return module.split("_")[2] if module.startswith("tdcr_warp_") else module.rsplit(".", 1)[-1]
 
 
