@@ -29,8 +29,9 @@ def test_long_line_contact_matches_the_closed_form():
     holds 0.01 r, beta l ~ 26 along the contact: single shooting is flagged PENETRATION (it
     cannot climb there); by default the rod is split and meets the closed form: total reaction
     w (L - 2a/3) to 2e-4 (measured 1.1e-4), its moment about the base to 1e-4 (2.4e-5), the
-    contact beginning within three intervals of a (2.1). Force balance with the contact forces: 1e-10
-    of the contact forces (the segments' gaps are closed to tol, not to round-off; 4e-11)."""
+    contact beginning within three intervals of a (2.1). Force balance with the contact forces and
+    the weight: 1e-10 of the contact forces (measured 2.0e-11: the O(h^4) integration error of the
+    distributed weight, which an unsplit cantilever under its weight shows too)."""
     L, c = 1.0, 0.2e-3
     a = (72 * EI * c / W) ** 0.25
     single = solve_static(in_tube(L, c), NONE, nodes=100, segments=1)
@@ -47,6 +48,28 @@ def test_long_line_contact_matches_the_closed_form():
     # what a split rod reports: no stability verdict or sensitivities from base-to-tip probes
     assert sol.stability_reasons()[0].startswith("not assessed: solved by multiple shooting")
     assert sol.orthogonality_error[0] < 1e-12
+
+
+def test_a_wire_pushed_into_a_bent_tube_balances_its_contact_forces():
+    """A wire clamped 1 mm before a tube bent at R 0.4 m (0.3 mm clearance), 0.3 m long, no
+    distributed load: single shooting is flagged PENETRATION; by default the rod is split and the
+    base wrench equals the force just before the tip node plus every contact force before it
+    (and their moments about the base) to 1e-10 of the contact forces (measured 1.2e-11 and
+    2.0e-11: the gaps between segments close to the residual's floor at rigid stiffness, not to
+    round-off; single shooting's identity holds to round-off, tests/test_contact.py)."""
+    tube = Obstacle("bent_tube", start=(0, 0, -1e-3), direction=(0, 0, 1), toward=(1, 0, 0), bend_radius=0.4,
+                    angle=0.3 / 0.4 + 0.1, radius=0.5e-3 + 0.3e-3)
+    rob = Robot(length=0.3, radius=0.5e-3, youngs_modulus=60e9, obstacles=[tube])
+    single = solve_static(rob, NONE, nodes=60, segments=1)
+    assert single.status[0] & layout.PENETRATION and not single.success[0]
+    sol = solve_static(rob, NONE, nodes=60)
+    assert sol.success[0] and sol.segments[0] > 1 and sol.penetration[0, 0] <= 0.01 * 0.5e-3
+    F, p = sol.contact_force[0], sol.positions[0]
+    nL, mL = sol.n[0, -1], sol.m[0, -1]  # just proximal of the tip node
+    n0 = nL + F[:-1].sum(axis=0)
+    m0 = mL + np.cross(p[-1], nL) + np.cross(p[:-1], F[:-1]).sum(axis=0)
+    assert np.abs(sol.base_wrench[0, :3] - n0).max() < 1e-10 * np.abs(F).sum()
+    assert np.abs(sol.base_wrench[0, 3:] - m0).max() < 1e-10 * np.abs(np.cross(p, F)).sum()
 
 
 def test_segments_give_single_shootings_answers():
