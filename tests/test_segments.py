@@ -70,14 +70,17 @@ def test_time_step_refinement_at_small_dt():
 
 def test_segment_choice_and_what_is_refused():
     """Single shooting where it resolves dt; a segment count outside 1..intervals, or segments with
-    tendon states or obstacles, is a one-line error; a held tip keeps single shooting."""
+    tendon states (friction), is a one-line error; with obstacles every rod is split as asked."""
     assert tw.Simulator(report_robot(), [[0.0] * 4], dt=5e-3, nodes=20).segments == 1
     for bad in (0, 21, 2.5):
         with pytest.raises(tw.InputError, match="segments must be"):
             tw.Simulator(report_robot(), [[0.0] * 4], dt=5e-3, nodes=20, segments=bad)
-    walled = report_robot(obstacles=[tw.Obstacle("plane", point=(0.1, 0, 0), normal=(-1, 0, 0))])
+    rubbing = report_robot(tendons=[tw.Tendon(offset=o, friction=0.1) for o in OFFSETS])
     with pytest.raises(tw.InputError, match="multiple shooting"):
-        tw.Simulator(walled, [[0.0] * 4], dt=5e-3, nodes=20, segments=4)
+        tw.Simulator(rubbing, [[0.0] * 4], dt=5e-3, nodes=20, segments=4)
+    walled = report_robot(obstacles=[tw.Obstacle("plane", point=(0.1, 0, 0), normal=(-1, 0, 0))])
+    sim = tw.Simulator(walled, [[0.0] * 4], dt=5e-3, nodes=20, segments=4)
+    assert sim.parts[0].count.tolist() == [4] and sim.step([[2.0, 0.0, 0.0, 0.0]]).converged[0]
 
 
 def test_status_of_a_segmented_step():
@@ -93,7 +96,7 @@ def test_the_banded_jacobian_is_the_whole_jacobian():
     central differences of the whole residual taken one unknown at a time (to 1e-7 of its largest
     entry; measured 6e-10); the whole residual's differences are exactly 0 outside the band."""
     sim = tw.Simulator(report_robot(), np.zeros((2, 4)), dt=2e-3, nodes=20, segments=4)
-    seg = sim.parts[0].seg
+    seg = sim.parts[0].segs[4]
     z = seg.z + 1e-3 * np.random.default_rng(0).normal(size=seg.z.shape)
     seg.jacobian(z)
     nz, kl = seg.nz, seg.band.kl

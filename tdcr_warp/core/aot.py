@@ -113,14 +113,15 @@ def compile_variant(v: Variant, arch: int, out_dir: str) -> list[tuple[str, floa
 
 def segmented(v: Variant):
     """The features of the variant's multiple-shooting kernel (tdcr_warp/physics/segments.py), or
-    None: dynamics splits rods without tendon states, a held tip or obstacles; statics splits rods
-    on obstacles (their scene without the held tip stands in for a held-tip variant)."""
+    None: dynamics splits rods without tendon states or a held tip, statics rods on obstacles (with
+    obstacles, the scene without the held tip stands in for a held-tip variant)."""
     from tdcr_warp.kernels.segments import segmentable
 
     f = v.features
-    if v.dynamic:
-        return f if segmentable(v.model, f) and not f.contact else None
-    return f._replace(tip=0) if f.contact and segmentable(v.model, f._replace(tip=0)) else None
+    if not (v.dynamic or f.contact):
+        return None
+    f = f._replace(tip=0) if f.contact else f
+    return f if segmentable(v.model, f) else None
 
 
 def group(module: str) -> str:

@@ -113,10 +113,6 @@ def _static_start(robot: Robot, tau: np.ndarray, displacements, initial: StaticS
     if len(bad):
         raise InputError(f"the static start did not converge for rods {bad[:10].tolist()} "
                          f"({static.failure_reasons()[bad[0]]})")
-    split = np.flatnonzero(static.segments_or_one > 1) if robot.obstacles else []
-    if len(split):
-        raise InputError(f"the static start of rods {split[:10].tolist()} needed multiple shooting (a long line "
-                         "contact), which dynamics with obstacles does not have yet")
     tables = Tables.of(robot, opts.nodes, opts.specialize, opts.kink_loads)
     if tables.grid.shape[1] != static.s.shape[1]:
         raise InputError("initial: its node count differs from the simulation's")
@@ -202,7 +198,8 @@ class Simulator(_Readings):
     segments (a solver option): multiple shooting (tdcr_warp/physics/segments.py: each rod split
     into that many segments in every step; 1: never); None (default): single shooting, and where
     dt is beyond its comfortable reach a rod whose step fails it (and its retries) is split into
-    as many segments as dt needs from then on (not yet with tendon states or a held tip).
+    as many segments as dt needs from then on (not yet with tendon states or a held tip); a rod
+    whose static start was split (a long line contact) stays split.
 
     Obstacles and a held tip act in every step as in statics (docs/contact.md, "In motion"): the
     contact damped by each obstacle's ``damping``, a rigid one stiffened where a step presses a rod
@@ -237,7 +234,7 @@ class Simulator(_Readings):
         _, avail = self._command(tau, displacements)
         self.slip = self.last_slip = np.ones((self.B, robot.n_tendons))  # the static start: pulled
         stiff = static.contact_stiffness
-        self.parts = [_Chunk(self, self.tables, lo, hi, tau[lo:hi], x0[lo:hi], static.tip_position[lo:hi],
+        self.parts = [_Chunk(self, self.tables, lo, hi, tau[lo:hi], x0[lo:hi], static,
                              None if avail is None else avail[lo:hi], None if stiff is None else stiff[lo:hi])
                       for lo, hi in self.chunks]
         if self.tables.features.contact:
@@ -318,10 +315,10 @@ class Simulator(_Readings):
 
 def _segment_count(sim: Simulator, segments: int | None) -> int:
     """The segments of multiple shooting (1: none): ``segments``, or (None) as many as dt needs
-    where single shooting is at risk and the variant allows them (no tendon states, held tip
-    or obstacles yet: else 1, warned where dt is beyond single shooting)."""
+    where single shooting is at risk and the variant allows them (no tendon states or held tip
+    yet: else 1, warned where dt is beyond single shooting)."""
     f, n_int = sim.tables.features, sim.tables.grid.shape[1] - 1
-    allowed = segmentable(sim.opts.model, f) and not f.contact
+    allowed = segmentable(sim.opts.model, f)
     if segments is None:
         need = segments_needed(sim.robot, sim.opts.precision, sim.dt, sim.coef[0] * sim.dt)
         segments = min(need, n_int) if allowed and need > 1 else 1
@@ -331,8 +328,8 @@ def _segment_count(sim: Simulator, segments: int | None) -> int:
     if not (isinstance(segments, int) and 1 <= segments <= n_int):
         raise InputError(f"segments must be an integer from 1 to the interval count {n_int}, got {segments!r}")
     if segments > 1 and not allowed:
-        raise InputError("segments > 1 (multiple shooting) needs a robot without displacement control, friction, "
-                         "a constrained tip or obstacles (not built yet)")
+        raise InputError("segments > 1 (multiple shooting) needs a robot without displacement control, friction "
+                         "or a constrained tip (not built yet)")
     warning = segments == 1 and single_shooting_warning(sim.robot, sim.opts.precision, sim.dt, sim.coef[0] * sim.dt)
     if warning:
         warnings.warn(warning, stacklevel=3)
@@ -427,7 +424,7 @@ class _Chunk:
     further in any step that presses a rod in beyond the tolerance."""
 
     def __init__(self, sim: Simulator, tables: Tables, lo: int, hi: int, tau: np.ndarray, x0: np.ndarray,
-                 tip: np.ndarray, avail: np.ndarray | None, stiffness: np.ndarray | None):
+                 static: StaticSolution, avail: np.ndarray | None, stiffness: np.ndarray | None):
         o = sim.opts
         self.sim = sim
         self.sh = sh = Shooting(tables, lo, hi, tau, precision=o.precision, integrator=o.integrator,
@@ -448,8 +445,8 @@ class _Chunk:
         self.x_prev = wp.zeros_like(sh.newton.x)
         self.x_start = wp.zeros_like(sh.newton.x)
         self.ok = wp.ones(b, dtype=int, device=d)
-        self.tip = [wp.array(tip, dtype=wp.vec3d, device=d)] + [wp.zeros(b, dtype=wp.vec3d, device=d)
-                                                                for _ in range(4)]
+        self.tip = [wp.array(static.tip_position[lo:hi], dtype=wp.vec3d, device=d)] + [
+            wp.zeros(b, dtype=wp.vec3d, device=d) for _ in range(4)]
         self.newton = dict(tol=o.tolerance, max_iter=o.max_iter, max_step=o.max_step,
                            broyden=o.jacobian == "broyden")
         self._end = Replay(self.hk.end_step, sh.b, sim.dev)
@@ -458,13 +455,14 @@ class _Chunk:
             self.contact.reset(self.contact.goal_stiffness() if stiffness is None else stiffness)
         sh.evaluate(x0)  # c0 = 0, empty history: the static slots
         wp.copy(sh.newton.x, sh.x_in)
-        self.seg = None  # segments = None: a rod is split once single shooting fails it, then stays split
-        if sim.segments > 1:
-            self.seg = Segments(sh, tables.rows("rod", lo, hi), sim.segments, sim.coef[0])
-            self.seg.from_nodes(sh.nodes, np.ones(sh.b, dtype=bool))
-        self.split = np.full(sh.b, sim.split_all and self.seg is not None)
+        self.segs, self.count = _chunk_segments(self, static.segments_or_one[lo:hi], static, lo)
         self._end_step(at_rest=True)
         sh.step.c0 = sh.dev.wdtype(sim.coef[0])
+
+    @property
+    def split(self) -> np.ndarray:
+        """(b,) bool: the rods stepped by multiple shooting."""
+        return self.count > 0
 
     def inside(self) -> np.ndarray:
         """(b,) bool: the last evaluated shapes penetrate an obstacle beyond the tolerance."""
@@ -495,19 +493,22 @@ class _Chunk:
         if slip is not None:
             sh.set_memory(slip, None)
         split, single = self.split & alive, alive & ~self.split
+        grown = self.segs.get(self.sim.segments)  # where a rod that single shooting fails goes
         if single.any():
-            if self.seg:
-                self.seg.from_nodes(sh.nodes, single)  # the last step's shapes: a start if single shooting fails
+            if grown:
+                grown.from_nodes(sh.nodes, single)  # the last step's shapes: a start if single shooting fails
             sh.solve(self.x_start, mask=None if single.all() else single, fresh_jacobian=first, **newton)
         if len(self.disp):
             settle_slack(sh, self.taut, self.disp, self.j_of, newton)
         failed = single & ~sh.converged()
         if failed.any():
             failed &= self._retry(failed, tau, tau_prev, avail)
-        if failed.any() and self.seg:  # beyond single shooting and its retries: split from now on
-            self.split, split = self.split | failed, split | failed
-        if split.any():  # multiple shooting: the Newton on the host, the segments on the device
-            self.seg.solve_into(split, newton["tol"], newton["max_iter"])
+        if failed.any() and grown:  # beyond single shooting and its retries: split from now on
+            self.count[failed] = grown.M
+            split = split | failed
+        for M, seg in self.segs.items():  # multiple shooting: the Newton on the host, the segments on the device
+            if (split & (self.count == M)).any():
+                seg.solve_into(split & (self.count == M), newton["tol"], newton["max_iter"])
         status, pen = sh.status(), np.zeros(sh.b)
         if self.contact:
             tol = self.sim.opts.contact_tolerance
@@ -555,3 +556,32 @@ class _Chunk:
                          self.x_prev, self.newton, self.sim.opts.continuation)
         finally:
             sh.model.dyn = own
+
+
+def _chunk_segments(chunk: _Chunk, start: np.ndarray, static: StaticSolution, lo: int) -> tuple[dict, np.ndarray]:
+    """Multiple shooting of a chunk: {M: Segments} and (b,) the segments of each rod (0: single
+    shooting). With ``segments`` = M every rod is split into M; with None a rod is split (into as
+    many as dt needs) once single shooting fails it, and stays split. A rod the static start split
+    (a long line contact; ``start`` (b,) its counts) keeps as many (at least dt's), solved again at
+    rest from the static shape (single shooting from its base wrench cannot hold it; the static n
+    is proximal of each node's point loads, a segment starts distal of them) for its shape and
+    static slots. Each rod's count is its own: a batch's rods do not change one another's answers."""
+    sim, sh, hi = chunk.sim, chunk.sh, lo + chunk.sh.b
+    held = start > 1
+    count = np.where(held, np.maximum(start, sim.segments), sim.segments if sim.split_all else 0)
+    count[count == 1] = 0  # (segments = 1: single shooting)
+    counts = set(np.unique(count[count > 1]).tolist()) | ({sim.segments} if sim.segments > 1 else set())
+    segs = {M: Segments(sh, sim.tables.rows("rod", lo, hi), M, sim.coef[0]) for M in sorted(counts)}
+    for M, seg in segs.items():
+        seg.from_nodes(sh.nodes, np.ones(sh.b, dtype=bool))
+        mine = held & (count == M)
+        if mine.any():
+            seg.from_states(static.positions[lo:hi], static.rotations[lo:hi], static.n[lo:hi], static.m[lo:hi],
+                            mine)
+            ok = seg.solve(mine, chunk.newton["tol"], chunk.newton["max_iter"])[0]
+            if not ok[mine].all():
+                raise InputError(f"the static start of rods {(lo + np.flatnonzero(mine & ~ok))[:10].tolist()} "
+                                 "(split into segments) did not converge again at rest in dynamics")
+    if chunk.contact:  # its stiffening solves a split rod by its segments (the same dict and counts)
+        chunk.contact.segs, chunk.contact.count = segs, count
+    return segs, count

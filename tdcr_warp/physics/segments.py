@@ -178,12 +178,17 @@ class SegmentUnknowns:
 
     def from_nodes(self, out, rods: np.ndarray) -> None:
         """The unknowns of ``rods`` (b,) from a stored shape (a Shooting's ``nodes``): a start."""
+        q, w = (out.q.numpy(), out.w.numpy()) if self.dynamic else (None, None)
+        self.from_states(out.p.numpy(), out.R.numpy(), out.n.numpy(), out.m.numpy(), rods, q, w)
+
+    def from_states(self, p, R, n, m, rods: np.ndarray, q=None, w=None) -> None:
+        """The unknowns of ``rods`` (b,) from the states at every node (b, N+1, ...) (q, w: at rest
+        where None)."""
         at = self.bounds[:-1]  # the segments' first nodes
-        get = lambda a: a.numpy()[:, at].astype(np.float64)  # noqa: E731
-        p, R, n, m = get(out.p), get(out.R), get(out.n), get(out.m)
+        p, R, n, m = (np.asarray(a)[:, at].astype(np.float64) for a in (p, R, n, m))
         z = [n[:, 0] / self.base_scale[:, :3], m[:, 0] / self.base_scale[:, 3:]]
         if self.dynamic:
-            q, w = get(out.q), get(out.w)
+            q, w = (np.zeros_like(p) if a is None else np.asarray(a)[:, at].astype(np.float64) for a in (q, w))
         for j in range(1, self.M):
             parts = [p[:, j], np.zeros((self.b, 3)), n[:, j], m[:, j]] + ([q[:, j], w[:, j]] if self.dynamic else [])
             z.append(np.concatenate(parts, axis=1) / self.scale)
