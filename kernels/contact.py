@@ -15,8 +15,17 @@ width eps = E I / (k L^3) centred on the surface, so the force and its derivativ
 continuous (Newton needs that) and, beyond a force per length of E I / (2 L^3), the law is
 exactly the linear penalty; as k grows, eps and the penetration at a given force shrink as
 1 / k. (Within the band a node is pushed while up to eps / 2 off the surface: that too is an
-error of the penalty, which the stiffening of tdcr_warp/physics/contact.py bounds.) The force acts through the centre line (a frictionless surface), so it adds no moment,
-and being a point force at a node it keeps global force and moment balance exact.
+error of the penalty, which the stiffening of tdcr_warp/physics/contact.py bounds.) The force
+acts through the centre line (a frictionless surface), so it adds no moment, and being a point
+force at a node it keeps global force and moment balance exact.
+
+A lumen (a tube or bent tube) takes phi(delta) - phi(delta_axis), delta_axis = r - R the
+penetration on its axis (R its inner radius, r the rod's), and 0 below it: a point on the axis
+has no nearest wall (the normal there is an arbitrary side), so a band reaching the axis (a soft
+stiffness in a narrow tube) would push a centred rod sideways, discontinuously; less its axis
+value the force vanishes there and stays continuous, the lumen's potential radial. Where the band
+stays off the axis (eps / 2 < R - r, e.g. at k0 wherever the clearance exceeds 0.01 r) nothing
+changes.
 
 In dynamics the force is damped the Hunt-Crossley way: times max(0, 1 + c d delta/dt), c the
 obstacle's damping [s/m] and d delta/dt = -n . p_t the rate at which the node presses in (p_t =
@@ -145,6 +154,17 @@ def make_contact(dtype, dynamic: bool):
     surface = make_surface(dtype, dynamic).surface
 
     @wp.func
+    def law(delta: dtype, eps: dtype):
+        """The rounded penalty's depth phi(delta) [m] at a penetration delta, band eps."""
+        phi = zero
+        if delta >= half * eps:
+            phi = delta
+        elif delta > -half * eps:
+            e = delta + half * eps
+            phi = e * e / (dtype(2.0) * eps)
+        return phi
+
+    @wp.func
     def contact_force(md: Model, b: int, node: int, p: vec3, vel: vec3):
         """The obstacles' point force on ``node`` at p moving at vel (world frame; dynamics) [N]
         and the smallest gap there [m] (negative: penetration)."""
@@ -164,13 +184,10 @@ def make_contact(dtype, dynamic: bool):
             gap = wp.min(gap, g)
             k = md.obst[i, j, OB_STIFF]
             eps = per_len / k
-            delta = -g
-            phi = zero
-            if delta >= half * eps:
-                phi = delta
-            elif delta > -half * eps:
-                e = delta + half * eps
-                phi = e * e / (dtype(2.0) * eps)
+            phi = law(-g, eps)
+            kind = int(md.obst[i, j, OB_KIND])
+            if kind == TUBE or kind == BENT_TUBE:  # less its value on the axis, which has no nearest wall
+                phi = wp.max(zero, phi - law(md.obst[i, j, OB_REACH] - md.obst[i, j, OB_RADIUS], eps))
             if wp.static(dynamic):
                 phi = phi * wp.max(zero, dtype(1.0) - md.obst[i, j, OB_DAMP] * wp.dot(nrm, vel))
             force += (k * share * phi) * nrm

@@ -112,6 +112,23 @@ def test_straight_tube_closed_form():
     assert abs(first - a) < 0.03  # the contact begins near a (the nodal law spreads the point reaction)
 
 
+def test_a_wire_on_a_narrow_tubes_axis_is_left_alone():
+    """A 0.5 m wire clamped on the axis of a tube of 0.2 mm clearance, unloaded or pulled by 1 mN
+    (the tip moves 17 um): the cold start's soft law has a 5 mm band, which reaches the axis, where
+    a lumen has no nearest wall; less its axis value the law leaves the rod alone. Single shooting
+    succeeds unsplit, with no contact force unloaded, and the pulled rod is the free rod's to
+    1e-9 m (before: flagged PENETRATION, stuck at 1e-3 k0)."""
+    tube = Obstacle("tube", start=(0, 0, -0.01), end=(0, 0, 0.51), radius=0.7e-3)
+    kw = dict(length=0.5, radius=0.5e-3, youngs_modulus=60e9, tendons=[Tendon(offset=(0.4e-3, 0.0))])
+    for tau in (0.0, 1e-3):
+        sol = solve_static(Robot(obstacles=[tube], **kw), np.full((1, 1), tau), nodes=100)
+        assert sol.success[0] and sol.segments[0] == 1
+        free = solve_static(Robot(**kw), np.full((1, 1), tau), nodes=100)
+        assert np.abs(sol.positions - free.positions).max() < 1e-9
+        if tau == 0.0:
+            assert not sol.contact_force.any()
+
+
 def test_rod_in_a_bent_tube_follows_it():
     """A straight rod pushed into a tube bent on an arc of radius Rb (clearance 0.3 mm): its tip
     stays within the clearance of the arc's centre line, and its base moment approaches the

@@ -213,10 +213,12 @@ class ContactSplitting(ContactState):
 
     def _growth(self, stiffness: np.ndarray) -> np.ndarray:
         """(b,) ``contact_growth`` at ``stiffness`` (b, O) over the length of each rod that
-        touches an obstacle in its last stored shape (nodes within the law's half band)."""
+        touches an obstacle in its last stored shape (nodes within the law's half band at that
+        stiffness: a soft band may reach nodes that the stiffer law leaves free, a whole wire
+        floating on a narrow tube's axis)."""
         sh = self.sh
         _f, _g, gap = self.measure()
-        touching = (gap < self.half_band()[:, None, :]).any(axis=2)  # (b, N+1)
+        touching = (gap < 0.5 * self.per_len[:, None, None] / stiffness[:, None, :]).any(axis=2)  # (b, N+1)
         length = touching.sum(axis=1) * np.broadcast_to(self.rod[:, layout.LENGTH], (sh.b,)) / (sh.n1 - 1)
         return contact_growth(np.broadcast_to(self.rod, (sh.b, self.rod.shape[1])), stiffness, length)
 
