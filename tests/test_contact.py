@@ -79,6 +79,22 @@ def test_global_balance_with_contact_forces():
     assert np.abs(nL - F[-1] - rob.tip_force[0]).max() < 1e-9 * scale_n
 
 
+def test_global_balance_with_a_distributed_load_is_fourth_order():
+    """A 0.3 m wire's cantilever under its weight (no contact): the base force equals the weight
+    to the integrator's order, not to round-off (the load enters as R R^T f at the integrator's
+    stages, where R is orthonormal only to the method's order; midpoint's error falls 4x per
+    halving): RK4's shrinks ~16x per halving of the intervals (measured 7.6e-9, 4.7e-10, 2.9e-11,
+    1.8e-12 of the weight at N = 25 .. 200)."""
+    w = 6450.0 * np.pi * 0.5e-3**2 * 9.81 * 0.3
+    rob = Robot(length=0.3, radius=0.5e-3, youngs_modulus=60e9, density=6450.0, gravity=(-9.81, 0.0, 0.0))
+    err = []
+    for nodes in (25, 50, 100):
+        sol = solve_static(rob, NONE, nodes=nodes)
+        err.append(np.abs(sol.base_wrench[0, :3] - (sol.n[0, -1] + (-w, 0.0, 0.0))).max() / w)
+    assert err[-1] < 1e-10
+    assert all(12 < a / b < 20 for a, b in zip(err, err[1:]))
+
+
 def test_rods_of_a_batch_are_independent():
     """Three rods, each with its own obstacle pose (one far away, two touched at different
     depths): the batch's answers are those of each rod alone, bit for bit."""
