@@ -142,6 +142,29 @@ def test_dynamics_steps_a_split_static_start():
     assert np.abs(F - target.contact_force[0].sum(axis=0)).max() < 1e-4 * np.abs(F).max()
 
 
+def test_dynamics_splits_a_rod_as_its_contact_grows():
+    """A damped 0.5 m wire on the axis of its tube (no load at the start), its tendon pulled from
+    0.25 to 4 N in 16 quasi-static steps (dt = 10 s, BDF2): the wire is drawn onto the wall along
+    a growing length. Single shooting (segments = 1) is flagged PENETRATION from the third step
+    and fails at the ninth. By default a step that single shooting leaves too deep in a long
+    contact is solved again from a softened contact and climbs back, split on the way (and split
+    again as the contact grows: 63 segments at the end): every step converges within the
+    tolerance, and the last shape is the statics' at 4 N within the contact tolerance (2.4 um)."""
+    tube = Obstacle("tube", start=(0, 0, -0.01), end=(0, 0, 0.51), radius=0.7e-3)
+    rob = Robot(length=0.5, radius=0.5e-3, youngs_modulus=60e9, tendons=[Tendon(offset=(0.4e-3, 0.0))],
+                obstacles=[tube], damping_bending=(0.01,) * 3, drag=(0.1,) * 3)
+    tau = np.linspace(0.25, 4.0, 16)[None, :, None]
+    single = tw.Simulator(rob, np.zeros((1, 1)), dt=10.0, alpha=0.0, nodes=100, segments=1).simulate(tau, 16)
+    assert (single.status[:, 0] & layout.PENETRATION).any() and single.failed_step[0] >= 0
+    sim = tw.Simulator(rob, np.zeros((1, 1)), dt=10.0, alpha=0.0, nodes=100)
+    assert sim.parts[0].count[0] == 0
+    run = sim.simulate(tau, 16)
+    assert run.converged.all() and not (run.status & layout.PENETRATION).any()
+    assert sim.parts[0].count[0] > 1
+    target = solve_static(rob, np.full((1, 1), 4.0), nodes=100)
+    assert target.success[0] and np.abs(sim.shapes()[0] - target.positions[0]).max() < 0.01 * 0.5e-3
+
+
 def test_split_rods_of_a_batch_are_independent_in_dynamics():
     """Wires of 0.5 m (split at the start) and 0.2 m (single shooting) in one batch, pulled for
     5 steps of 2 ms: each rod's trajectory equals its own alone, bit for bit."""

@@ -167,6 +167,7 @@ class ContactSplitting(ContactState):
     count: np.ndarray | None = None  # (b,) int: the segments each rod is split into (0: single shooting)
     armed: bool = False  # split the rods single shooting cannot carry
     fixed: int | None = None  # the count of every split (None: as many as each rod needs)
+    c0: float = 0.0  # BDF-alpha's c0 [1/s] of the split rods' unknowns (0: statics)
 
     def arm(self, segments: int | None) -> None:
         """Split the rods single shooting cannot carry up a climb (``StaticOptions.segments``:
@@ -204,14 +205,14 @@ class ContactSplitting(ContactState):
         if self.fixed:
             need = np.full(sh.b, self.fixed)
         else:
-            need = contact_segments(np.broadcast_to(self.rod, (sh.b, self.rod.shape[1])), stiffness, self._precision)
+            need = contact_segments(np.broadcast_to(self.rod, (sh.b, self.rod.shape[1])), stiffness, self.precision)
         return np.clip(need, 2, sh.n1 - 1)
 
     @property
-    def _precision(self) -> str:
+    def precision(self) -> str:
         return "float64" if self.sh.dev.wdtype == wp.float64 else "float32"
 
-    def _growth(self, stiffness: np.ndarray) -> np.ndarray:
+    def growth(self, stiffness: np.ndarray) -> np.ndarray:
         """(b,) ``contact_growth`` at ``stiffness`` (b, O) over the length of each rod that
         touches an obstacle in its last stored shape (nodes within the law's half band at that
         stiffness: a soft band may reach nodes that the stiffer law leaves free, a whole wire
@@ -227,7 +228,7 @@ class ContactSplitting(ContactState):
         a start error beyond SINGLE_REACH along its length are split, and split rods that need
         more segments there split again (``split_rods``, sized for STEP times that stiffness)."""
         split = self.split_mask()
-        beyond = self._growth(stiffness) > math.log(SINGLE_REACH[self._precision])
+        beyond = self.growth(stiffness) > math.log(SINGLE_REACH[self.precision])
         grow = rods & ((~split & beyond) | (split & (self._need(stiffness * STEP) > self.split_count())))
         if grow.any():
             self.split_rods(grow, stiffness * STEP)
@@ -241,7 +242,7 @@ class ContactSplitting(ContactState):
         for M in np.unique(need[rods]).tolist():
             mine = rods & (need == M)
             if M not in self.segs:
-                self.segs[M] = Segments(self.sh, self.rod, M, 0.0)
+                self.segs[M] = Segments(self.sh, self.rod, M, self.c0)
             self.segs[M].from_nodes(self.sh.nodes, mine)
             self.count[mine] = M
 
@@ -290,7 +291,7 @@ class Contact(ContactSplitting):
                 again = failed & exact
                 if self.armed:  # failed twice where single shooting is at risk: again by multiple shooting
                     tried = k * np.where(failed, step, 1.0)[:, None]
-                    risk = self._growth(tried) > math.log(SWITCH_REACH[self._precision])
+                    risk = self.growth(tried) > math.log(SWITCH_REACH[self.precision])
                     grow = again & risk & (~self.split_mask() | (self._need(tried) > self.split_count()))
                     if grow.any():
                         self.split_rods(grow, tried * STEP)

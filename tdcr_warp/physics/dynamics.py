@@ -28,7 +28,7 @@ from tdcr_warp.kernels.segments import segmentable
 from tdcr_warp.model.options import StaticOptions
 from tdcr_warp.model.robot import InputError, Robot, check_command, check_tensions, real_array, require_memory
 from tdcr_warp.physics.contact import chunk_contacts, penetration
-from tdcr_warp.physics.segments import Segments, segments_needed, single_shooting_warning
+from tdcr_warp.physics.segments import SWITCH_REACH, Segments, segments_needed, single_shooting_warning
 from tdcr_warp.physics.slack import available_lengths, settle_slack
 from tdcr_warp.physics.statics import StaticSolution, reference_lengths, solve_static
 
@@ -199,7 +199,8 @@ class Simulator(_Readings):
     into that many segments in every step; 1: never); None (default): single shooting, and where
     dt is beyond its comfortable reach a rod whose step fails it (and its retries) is split into
     as many segments as dt needs from then on (not yet with tendon states or a held tip); a rod
-    whose static start was split (a long line contact) stays split.
+    whose static start was split (a long line contact) stays split, and one whose contact grows
+    too long for single shooting is split as statics splits it (docs/contact.md, "In motion").
 
     Obstacles and a held tip act in every step as in statics (docs/contact.md, "In motion"): the
     contact damped by each obstacle's ``damping``, a rigid one stiffened where a step presses a rod
@@ -450,9 +451,11 @@ class _Chunk:
         self.newton = dict(tol=o.tolerance, max_iter=o.max_iter, max_step=o.max_step,
                            broyden=o.jacobian == "broyden")
         self._end = Replay(self.hk.end_step, sh.b, sim.dev)
-        self.contact = next(iter(chunk_contacts(sim.robot, tables, [sh], [(lo, hi)])), None)
+        armed = sim.opts.segments if segmentable(o.model, tables.features) else 1  # (split as statics does)
+        self.contact = next(iter(chunk_contacts(sim.robot, tables, [sh], [(lo, hi)], armed)), None)
         if self.contact:  # the rigid obstacles as stiff as the start's solve left them (else at their base)
             self.contact.reset(self.contact.goal_stiffness() if stiffness is None else stiffness)
+            self.contact.c0 = sim.coef[0]
         sh.evaluate(x0)  # c0 = 0, empty history: the static slots
         wp.copy(sh.newton.x, sh.x_in)
         self.segs, self.count = _chunk_segments(self, static.segments_or_one[lo:hi], static, lo)
@@ -512,6 +515,7 @@ class _Chunk:
         status, pen = sh.status(), np.zeros(sh.b)
         if self.contact:
             tol = self.sim.opts.contact_tolerance
+            _climb_anew(self, alive, tol)
             self.contact.stiffen(tol, self.sim.opts.contact_steps, newton, alive)
             found = self.contact.results(tol, sh.status())
             status, pen = found["status"], penetration(found["contact_gap"]).max(axis=1)
@@ -556,6 +560,22 @@ class _Chunk:
                          self.x_prev, self.newton, self.sim.opts.continuation)
         finally:
             sh.model.dyn = own
+
+
+def _climb_anew(chunk: _Chunk, alive: np.ndarray, tol: float) -> None:
+    """In a chunk's step, where its contact is armed (``segments``, as in statics): a live rod
+    (``alive`` (b,)) that single shooting leaves deeper than the tolerance, in a contact along
+    which a start error grows beyond SWITCH_REACH (a line contact grown too long for it:
+    stiffening from there fails, split or not), is solved again from the last step's state with
+    its obstacles SOFT times as stiff and climbs back, split on the way where single shooting
+    cannot carry it, as a cold static solve does (``Contact.soften``)."""
+    sh, c = chunk.sh, chunk.contact
+    rods = alive & sh.converged() & ~chunk.split
+    if c.armed and rods.any():
+        rods &= (c.results(tol, sh.status())["status"] & layout.PENETRATION) != 0
+        rods &= c.growth(c.table[..., layout.OB_STIFF]) > math.log(SWITCH_REACH[c.precision])
+        if rods.any():
+            c.soften(rods, chunk.x_prev, chunk.newton)
 
 
 def _chunk_segments(chunk: _Chunk, start: np.ndarray, static: StaticSolution, lo: int) -> tuple[dict, np.ndarray]:
