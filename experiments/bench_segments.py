@@ -4,7 +4,7 @@ them: it uses the public API only. Medians over repeats after a first call that 
 peak memory (tracemalloc: numpy's arrays included) is that of one more call.
 
   dynamics   the report's robot at dt = 1e-5 s, N = 40 (split into 11 segments), ``--rods`` rods
-             pulled with random tensions: a step, once split
+             pulled with random tensions: ``--steps`` steps, once split
   bent tube  a 0.5 mm wire pushed 0.4 m into a tube bent at R 0.3 m, N = 80 (80 segments): a solve
              (experiments/long_contact.py's last scene)
   batch      ``--rods`` wires sagging in straight tubes of 0.6 to 1.0 m, N = 100 (24 to 39
@@ -40,9 +40,10 @@ def report_robot() -> tw.Robot:
                     damping_bending=(0.008,) * 3, drag=(0.01,) * 3)
 
 
-def dynamics_case(rods: int):
-    """The next step of ``rods`` report robots at dt = 1e-5 s, pulled from rest with tensions
-    U[0, 3] N (the first step, in the call that compiles, splits them: single shooting fails)."""
+def dynamics_case(rods: int, steps: int):
+    """The next ``steps`` steps of ``rods`` report robots at dt = 1e-5 s, pulled from rest with
+    tensions U[0, 3] N (the first step, in the call that compiles, splits them: single shooting
+    fails)."""
     tau = np.random.default_rng(0).uniform(0.0, 3.0, (rods, 4))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # the single-shooting warning: expected here
@@ -50,8 +51,8 @@ def dynamics_case(rods: int):
 
     def run():
         t = time.perf_counter()
-        r = sim.step(tau)
-        return time.perf_counter() - t, bool(r.converged.all())
+        ok = all(bool(sim.step(tau).converged.all()) for _ in range(steps))
+        return time.perf_counter() - t, ok
     return run
 
 
@@ -85,6 +86,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--rods", type=int, default=16)
     ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--steps", type=int, default=10, help="dynamics: the steps a repeat times")
     ap.add_argument("--smoke", action="store_true", help="two rods, one repeat, the batch only (for the test suite)")
     ap.add_argument("--out", default=str(ROOT / "results" / "bench_segments.json"))
     args = ap.parse_args(argv)
@@ -92,14 +94,14 @@ def main(argv=None) -> int:
         args.rods, args.repeats = 2, 1
     cases = {"batch": static_case(tube_batch(args.rods), 100)}
     if not args.smoke:
-        cases = {"dynamics": dynamics_case(args.rods), "bent tube": static_case(bent(0.4, 0.3), 80)} | cases
+        cases = {"dynamics": dynamics_case(args.rods, args.steps), "bent tube": static_case(bent(0.4, 0.3), 80)} | cases
     results = {}
     for name, run in cases.items():
         results[name] = measure(run, args.repeats)
         r = results[name]
         print(f"{name:10s} {r['median_s'] * 1e3:9.1f} ms  (all converged: {r['all_converged']}; "
               f"peak host memory {r['peak_host_mb']:.1f} MiB)", flush=True)
-    write_report(args.out, {"meta": metadata("cpu", rods=args.rods, repeats=args.repeats,
+    write_report(args.out, {"meta": metadata("cpu", rods=args.rods, repeats=args.repeats, steps=args.steps,
                                              package=str(Path(tw.__file__).resolve().parent)), "cases": results})
     return 0
 
