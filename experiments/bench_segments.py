@@ -29,15 +29,7 @@ from _common import ROOT, metadata, write_report  # noqa: E402
 
 import tdcr_warp as tw  # noqa: E402
 from long_contact import SAG, bent  # noqa: E402
-
-OFFSETS = [(0.01, 0.0), (0.0, 0.01), (-0.01, 0.0), (0.0, -0.01)]
-
-
-def report_robot() -> tw.Robot:
-    """The report's robot, damped as in its control scene."""
-    return tw.Robot(length=0.5, youngs_modulus=190e9, poisson_ratio=0.3, radius=1e-3, density=17189.0,
-                    tendons=[tw.Tendon(offset=o) for o in OFFSETS], gravity=(0.0, 0.0, -9.81),
-                    damping_bending=(0.008,) * 3, drag=(0.01,) * 3)
+from tdcr_warp.io.scene import load_scene  # noqa: E402
 
 
 def dynamics_case(rods: int, steps: int):
@@ -47,7 +39,8 @@ def dynamics_case(rods: int, steps: int):
     tau = np.random.default_rng(0).uniform(0.0, 3.0, (rods, 4))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # the single-shooting warning: expected here
-        sim = tw.Simulator(report_robot(), np.zeros((rods, 4)), dt=1e-5, nodes=40)
+        robot = load_scene(ROOT / "examples" / "seed_control.toml").robot  # the report's robot, damped
+        sim = tw.Simulator(robot, np.zeros((rods, 4)), dt=1e-5, nodes=40)
 
     def run():
         t = time.perf_counter()

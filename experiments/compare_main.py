@@ -375,6 +375,7 @@ CASES = [
          split_dynamics),
     scene_control("our_control"),
     scene_control("seed_control"),
+    scene_control("wall_control"),
     Case("dynamics/tendons", "displaced pair with mu = 0.2 pulled at 5 mm/s, 20 steps", tendon_dynamics),
     Case("control/batch3_smc", "3 rods, per-rod targets and gain_c, sgn(S), 20 steps, N = 20", batch_control),
 ]

@@ -169,10 +169,11 @@ class ContactSplitting(ContactState):
     fixed: int | None = None  # the count of every split (None: as many as each rod needs)
     c0: float = 0.0  # BDF-alpha's c0 [1/s] of the split rods' unknowns (0: statics)
 
-    def arm(self, segments: int | None) -> None:
+    def arm(self, segments: int | None, c0: float = 0.0) -> None:
         """Split the rods single shooting cannot carry up a climb (``StaticOptions.segments``:
-        None: into as many segments as each needs; M: into M; 1: never)."""
-        self.armed, self.fixed = segments != 1, segments
+        None: into as many segments as each needs; M: into M; 1: never), their unknowns scaled
+        with BDF-alpha's c0 [1/s] (0: statics)."""
+        self.armed, self.fixed, self.c0 = segments != 1, segments, c0
 
     def split_mask(self) -> np.ndarray:
         """(b,) bool: the rods multiple shooting solves."""
@@ -376,9 +377,9 @@ class Contact(ContactSplitting):
 
 
 def chunk_contacts(robot, tables, solvers: list[Shooting], chunks: list[tuple[int, int]],
-                   segments: int | None = 1) -> list[Contact]:
-    """The Contact of each chunk's Shooting (none without obstacles), armed with ``segments``
-    (``Contact.arm``; 1: never split)."""
+                   segments: int | None = 1, c0: float = 0.0) -> list[Contact]:
+    """The Contact of each chunk's Shooting (none without obstacles), armed with ``segments`` and
+    c0 (``Contact.arm``; 1: never split)."""
     if not tables.features.contact:
         return []
     rigid = np.array([ob.rigid for ob in robot.obstacles], dtype=bool)
@@ -387,5 +388,5 @@ def chunk_contacts(robot, tables, solvers: list[Shooting], chunks: list[tuple[in
                         radius[lo:hi] if len(radius) > 1 else radius)
                 for sh, (lo, hi) in zip(solvers, chunks)]
     for contact in contacts:
-        contact.arm(segments)
+        contact.arm(segments, c0)
     return contacts

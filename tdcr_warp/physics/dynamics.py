@@ -30,7 +30,7 @@ from tdcr_warp.model.robot import InputError, Robot, check_command, check_tensio
 from tdcr_warp.physics.contact import chunk_contacts, penetration
 from tdcr_warp.physics.segments import SWITCH_REACH, Segments, segments_needed, single_shooting_warning
 from tdcr_warp.physics.slack import available_lengths, settle_slack
-from tdcr_warp.physics.statics import StaticSolution, reference_lengths, solve_static
+from tdcr_warp.physics.statics import StaticSolution, armed_segments, reference_lengths, solve_static
 
 __all__ = ["Simulator", "StepResult", "Trajectory", "bdf_alpha_coefficients"]
 
@@ -234,10 +234,8 @@ class Simulator(_Readings):
         self.chunks = split(self.B, self.dev, self.opts.threads)
         _, avail = self._command(tau, displacements)
         self.slip = self.last_slip = np.ones((self.B, robot.n_tendons))  # the static start: pulled
-        stiff = static.contact_stiffness
         self.parts = [_Chunk(self, self.tables, lo, hi, tau[lo:hi], x0[lo:hi], static,
-                             None if avail is None else avail[lo:hi], None if stiff is None else stiff[lo:hi])
-                      for lo, hi in self.chunks]
+                             None if avail is None else avail[lo:hi]) for lo, hi in self.chunks]
         if self.tables.features.contact:
             inside = np.flatnonzero(np.concatenate([c.inside() for c in self.parts]))
             if len(inside):
@@ -421,11 +419,11 @@ class _Recording:
 class _Chunk:
     """The rods lo:hi of a Simulator: their shooting problem and, on the device, the BDF-alpha
     history of every slot, the previous solution, the tip kinematics and the step outcome; with
-    obstacles their Contact, at the static start's stiffness (``stiffness`` (b, O)) and stiffened
+    obstacles their Contact, at the stiffness of the static start ``static`` and stiffened
     further in any step that presses a rod in beyond the tolerance."""
 
     def __init__(self, sim: Simulator, tables: Tables, lo: int, hi: int, tau: np.ndarray, x0: np.ndarray,
-                 static: StaticSolution, avail: np.ndarray | None, stiffness: np.ndarray | None):
+                 static: StaticSolution, avail: np.ndarray | None):
         o = sim.opts
         self.sim = sim
         self.sh = sh = Shooting(tables, lo, hi, tau, precision=o.precision, integrator=o.integrator,
@@ -451,11 +449,11 @@ class _Chunk:
         self.newton = dict(tol=o.tolerance, max_iter=o.max_iter, max_step=o.max_step,
                            broyden=o.jacobian == "broyden")
         self._end = Replay(self.hk.end_step, sh.b, sim.dev)
-        armed = sim.opts.segments if segmentable(o.model, tables.features) else 1  # (split as statics does)
-        self.contact = next(iter(chunk_contacts(sim.robot, tables, [sh], [(lo, hi)], armed)), None)
+        self.contact = next(iter(chunk_contacts(sim.robot, tables, [sh], [(lo, hi)], armed_segments(tables, o),
+                                                sim.coef[0])), None)  # (split as statics does)
         if self.contact:  # the rigid obstacles as stiff as the start's solve left them (else at their base)
-            self.contact.reset(self.contact.goal_stiffness() if stiffness is None else stiffness)
-            self.contact.c0 = sim.coef[0]
+            stiffness = static.contact_stiffness
+            self.contact.reset(self.contact.goal_stiffness() if stiffness is None else stiffness[lo:hi])
         sh.evaluate(x0)  # c0 = 0, empty history: the static slots
         wp.copy(sh.newton.x, sh.x_in)
         self.segs, self.count = _chunk_segments(self, static.segments_or_one[lo:hi], static, lo)
@@ -588,13 +586,12 @@ def _chunk_segments(chunk: _Chunk, start: np.ndarray, static: StaticSolution, lo
     static slots. Each rod's count is its own: a batch's rods do not change one another's answers."""
     sim, sh, hi = chunk.sim, chunk.sh, lo + chunk.sh.b
     held = start > 1
-    count = np.where(held, np.maximum(start, sim.segments), sim.segments if sim.split_all else 0)
-    count[count == 1] = 0  # (segments = 1: single shooting)
+    count = np.where(held, np.maximum(start, sim.segments), sim.segments if sim.split_all and sim.segments > 1 else 0)
     counts = set(np.unique(count[count > 1]).tolist()) | ({sim.segments} if sim.segments > 1 else set())
     segs = {M: Segments(sh, sim.tables.rows("rod", lo, hi), M, sim.coef[0]) for M in sorted(counts)}
     for M, seg in segs.items():
-        seg.from_nodes(sh.nodes, np.ones(sh.b, dtype=bool))
         mine = held & (count == M)
+        seg.from_nodes(sh.nodes, ~mine)  # (single shooting's shapes: a start where a step splits a rod)
         if mine.any():
             seg.from_states(static.positions[lo:hi], static.rotations[lo:hi], static.n[lo:hi], static.m[lo:hi],
                             mine)

@@ -34,7 +34,7 @@ from tdcr_warp.physics.segments import Segments
 from tdcr_warp.physics.sensitivity import parameter_tables
 from tdcr_warp.physics.slack import available_lengths, linear_tensions, settle_slack, tendon_compliance
 
-__all__ = ["StaticOptions", "StaticProblem", "StaticSolution", "reference_lengths", "solve_static"]
+__all__ = ["StaticOptions", "StaticProblem", "StaticSolution", "armed_segments", "reference_lengths", "solve_static"]
 
 
 class RodRows:
@@ -284,7 +284,7 @@ class StaticProblem:
         self.disp = np.flatnonzero(self.tables.tmode[0] >= 0)  # the displaced tendons
         self.j_of = 6 + self.tables.tmode[0, self.disp]  # their shooting unknowns
         self.assessor = Assessor(robot, self.tables, opts)
-        self.armed = _armed_segments(self.tables, opts)  # multiple shooting's count (None: as needed; 1: never)
+        self.armed = armed_segments(self.tables, opts)  # multiple shooting's count (None: as needed; 1: never)
         self.contacts = chunk_contacts(robot, self.tables, self.solvers, self.chunks, self.armed)
         self.lock = threading.Lock()
         self._reference = None
@@ -475,7 +475,7 @@ def _contact_and_split(problem: StaticProblem, sh: Shooting, lo: int, hi: int, c
     return np.where(rods, count, 1)
 
 
-def _armed_segments(tables: Tables, opts: StaticOptions) -> int | None:
+def armed_segments(tables: Tables, opts: StaticOptions) -> int | None:
     """``StaticOptions.segments`` where multiple shooting covers the variant (no tendon states,
     constrained tip or disks), else 1; checked against the variant and the grid (InputError)."""
     segmentable = kernel_segmentable(opts.model, tables.features)
