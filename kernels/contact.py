@@ -32,9 +32,21 @@ obstacle's damping [s/m] and d delta/dt = -n . p_t the rate at which the node pr
 R q its velocity). The damping vanishes with the penetration, so the force is continuous at
 first touch, and it never pulls the rod back onto the surface.
 
+The force acts at the nodes, but the centre line between them is checked too: each interval is
+drawn as the cubic Hermite curve through its end nodes with tangents h R e3 (h its length), cut
+into INTERVAL_CHORDS pieces, and each piece's gap is taken at its end and at the point of the
+curve where its chord comes nearest a sphere's centre or a capsule's axis (its middle for the
+other kinds). Both are points of the curve, so a convex wall is not seen deeper than it is (a
+chord of a rod wrapped on a sphere cuts into it by its sagitta), and an obstacle smaller than a
+piece is still found where the chord passes it. An obstacle that falls between two nodes, or a
+rod pulled through one, is then seen: its interval's gap is negative.
+
   surface        the distance from p to an obstacle's surface and the normal there
+  nearest_on_chord  where a chord of the centre line comes nearest an obstacle's core
+  core_distance  how near the straight way between two points passes an obstacle's core
   contact_force  the sum of the obstacles' forces at a node and the smallest gap
-  contact kernel the force and gap at every node of solved shapes (outputs)
+  contact kernels the force and gap at every node of solved shapes and the smallest gap along
+                 every interval (outputs)
 """
 
 import functools
@@ -63,9 +75,10 @@ from .layout import (
 )
 from .structs import make_rows, make_structs
 
-__all__ = ["FAR", "make_contact", "make_contact_kernel"]
+__all__ = ["FAR", "INTERVAL_CHORDS", "make_contact", "make_contact_kernel", "make_interval_kernels"]
 
 FAR = 1.0e30  # the distance reported where an obstacle cannot be touched (beyond a tube's ends)
+INTERVAL_CHORDS = 4  # chords per interval of the centre line in the check between nodes
 
 
 @functools.cache
@@ -139,7 +152,88 @@ def make_surface(dtype, dynamic: bool):
                     nrm = -away(r, lr, u)
         return d, nrm
 
-    return SimpleNamespace(surface=surface)
+    return SimpleNamespace(surface=surface, column=column)
+
+
+@functools.cache
+def make_chords(dtype, dynamic: bool):
+    """``nearest_on_chord`` and ``core_distance``: a straight piece of the centre line against an
+    obstacle's core, for one precision."""
+    vec3 = wp.types.vector(3, dtype)
+    zero = dtype(0.0)
+    far = dtype(FAR)
+    Model = make_structs(dtype, dynamic).Model
+    column = make_surface(dtype, dynamic).column
+
+    @wp.func
+    def point_segment(p: vec3, a: vec3, b: vec3):
+        """The parameter t in [0, 1] of the point of the segment a-b nearest p."""
+        ab = b - a
+        return wp.clamp(wp.dot(p - a, ab) / wp.max(wp.dot(ab, ab), dtype(1e-30)), zero, dtype(1.0))
+
+    @wp.func
+    def segment_segment(p1: vec3, q1: vec3, p2: vec3, q2: vec3):
+        """The parameters (s, t) in [0, 1] of the nearest points of the segments p1-q1 and p2-q2."""
+        d1 = q1 - p1
+        d2 = q2 - p2
+        r = p1 - p2
+        a = wp.dot(d1, d1)
+        e = wp.dot(d2, d2)
+        f = wp.dot(d2, r)
+        s = zero
+        t = zero
+        if a <= zero:
+            if e > zero:
+                t = wp.clamp(f / e, zero, dtype(1.0))
+        else:
+            c = wp.dot(d1, r)
+            if e <= zero:
+                s = wp.clamp(-c / a, zero, dtype(1.0))
+            else:
+                bb = wp.dot(d1, d2)
+                denom = a * e - bb * bb
+                if denom > zero:
+                    s = wp.clamp((bb * f - c * e) / denom, zero, dtype(1.0))
+                t = (bb * s + f) / e
+                if t < zero:
+                    t = zero
+                    s = wp.clamp(-c / a, zero, dtype(1.0))
+                elif t > dtype(1.0):
+                    t = dtype(1.0)
+                    s = wp.clamp((bb - c) / a, zero, dtype(1.0))
+        return s, t
+
+    @wp.func
+    def nearest_on_chord(md: Model, i: int, j: int, a: vec3, b: vec3):
+        """Where along the chord a-b (t in [0, 1]) it comes nearest the core of obstacle j (row i):
+        a sphere's centre, a capsule's axis; the middle for the others."""
+        kind = int(md.obst[i, j, OB_KIND])
+        t = dtype(0.5)
+        if kind == SPHERE:
+            t = point_segment(column(md, i, j, OB_A), a, b)
+        elif kind == CAPSULE:
+            t, _t = segment_segment(a, b, column(md, i, j, OB_A), column(md, i, j, OB_B))
+        return t
+
+    @wp.func
+    def core_distance(md: Model, i: int, j: int, a: vec3, b: vec3):
+        """How far the straight way from a to b passes from the core of obstacle j (row i), in
+        units of its radius plus the rod's: 1 grazes the surface, 0 goes through the centre or the
+        axis (a sphere or capsule; FAR for the others, which have no inside to cross)."""
+        kind = int(md.obst[i, j, OB_KIND])
+        reach = md.obst[i, j, OB_RADIUS] + md.obst[i, j, OB_REACH]
+        d = far
+        if kind == SPHERE:
+            c = column(md, i, j, OB_A)
+            d = wp.length(a + point_segment(c, a, b) * (b - a) - c) / reach
+        elif kind == CAPSULE:
+            p = column(md, i, j, OB_A)
+            q = column(md, i, j, OB_B)
+            s, t = segment_segment(a, b, p, q)
+            d = wp.length(a + s * (b - a) - (p + t * (q - p))) / reach
+        return d
+
+    return SimpleNamespace(nearest_on_chord=nearest_on_chord, core_distance=core_distance)
 
 
 @functools.cache
@@ -233,3 +327,71 @@ def make_contact_kernel(dtype, dynamic: bool = False):
                     pressing[b, k, j] = dtype(FAR)
 
     return contact_nodes
+
+
+@functools.cache
+def make_interval_kernels(dtype, dynamic: bool = False):
+    """The kernels of the centre line between the nodes (outputs; in the contact kernels' module):
+    ``intervals``, along every interval the smallest gap to each obstacle [m] (the module's check
+    between nodes); ``crossing``, for two shapes of the same rods (``pos0``, ``rot0``: where they
+    started), how near the straight way of each point of an interval from its first shape to its
+    second passes the core of each sphere or capsule (``core_distance``, its smallest over the
+    interval's samples)."""
+    vec3 = wp.types.vector(3, dtype)
+    mat33 = wp.types.matrix((3, 3), dtype)
+    Model = make_structs(dtype, dynamic).Model
+    surface = make_surface(dtype, dynamic).surface
+    chords = make_chords(dtype, dynamic)
+    row = make_rows(dtype, dynamic).row
+    one, two, three = dtype(1.0), dtype(2.0), dtype(3.0)
+    step = dtype(1.0 / INTERVAL_CHORDS)
+
+    @wp.func
+    def tangent(R: mat33, h: dtype):
+        """h R e3: the Hermite tangent of an interval of length h [m]."""
+        return vec3(R[0, 2], R[1, 2], R[2, 2]) * h
+
+    @wp.func
+    def hermite(md: Model, b: int, k: int, pos: wp.array2d(dtype=vec3), rot: wp.array2d(dtype=mat33), x: dtype):
+        """The centre line of interval k at x in [0, 1]: the cubic Hermite curve through its end
+        nodes with tangents h R e3."""
+        h = md.grid[row(b, md.grid), k + 1] - md.grid[row(b, md.grid), k]
+        x2 = x * x
+        x3 = x2 * x
+        return ((two * x3 - three * x2 + one) * pos[b, k] + (x3 - two * x2 + x) * tangent(rot[b, k], h)
+                + (three * x2 - two * x3) * pos[b, k + 1] + (x3 - x2) * tangent(rot[b, k + 1], h))
+
+    @wp.kernel
+    def contact_intervals(md: Model, pos: wp.array2d(dtype=vec3), rot: wp.array2d(dtype=mat33),
+                          igap: wp.array3d(dtype=dtype)):
+        b, k = wp.tid()
+        i = row(b, md.obst)
+        for j in range(md.n_obst):
+            smallest = dtype(FAR)
+            a = pos[b, k]
+            for c in range(wp.static(INTERVAL_CHORDS)):
+                x = dtype(c) * step
+                q = hermite(md, b, k, pos, rot, x + step)
+                near = hermite(md, b, k, pos, rot, x + step * chords.nearest_on_chord(md, i, j, a, q))
+                d_end, _n_end = surface(md, i, j, q)
+                d_near, _n_near = surface(md, i, j, near)
+                smallest = wp.min(smallest, wp.min(d_end, d_near))
+                a = q
+            igap[b, k, j] = smallest - md.obst[i, j, OB_REACH]
+
+    @wp.kernel
+    def crossing(md: Model, pos0: wp.array2d(dtype=vec3), rot0: wp.array2d(dtype=mat33),
+                 pos: wp.array2d(dtype=vec3), rot: wp.array2d(dtype=mat33), core: wp.array3d(dtype=dtype)):
+        b, k = wp.tid()
+        i = row(b, md.obst)
+        for j in range(md.n_obst):
+            nearest = dtype(FAR)
+            for c in range(wp.static(INTERVAL_CHORDS)):
+                x = dtype(c) * step
+                d = chords.core_distance(md, i, j, hermite(md, b, k, pos0, rot0, x), hermite(md, b, k, pos, rot, x))
+                nearest = wp.min(nearest, d)
+            if k == pos.shape[1] - 2:  # the tip
+                nearest = wp.min(nearest, chords.core_distance(md, i, j, pos0[b, k + 1], pos[b, k + 1]))
+            core[b, k, j] = nearest
+
+    return SimpleNamespace(intervals=contact_intervals, crossing=crossing)

@@ -63,6 +63,7 @@ PRECISION_LIMITED = 32  # with CONVERGED: stopped at the round-off floor, residu
 UNSETTLED = 64  # displacement control: the taut / slack set of the tendons did not settle
 UNSTABLE = 128  # with CONVERGED: an equilibrium, but an unstable one (tdcr_warp/physics/stability.py)
 PENETRATION = 256  # contact not resolved: a rigid obstacle penetrated beyond tolerance, or the base inside one
+CROSSED = 1024  # a rigid obstacle crossed on the way to the answer (tdcr_warp/physics/crossing.py)
 
 STATUS_NAMES = {
     CONVERGED: "converged",
@@ -73,7 +74,9 @@ STATUS_NAMES = {
     PRECISION_LIMITED: "precision-limited (residual at round-off, above tol)",
     UNSETTLED: "taut/slack set of the displaced tendons did not settle",
     UNSTABLE: "unstable equilibrium",
-    PENETRATION: "contact not resolved (a rigid obstacle penetrated beyond contact_tolerance, or the base inside an obstacle)",
+    PENETRATION: "contact not resolved (a rigid obstacle penetrated beyond contact_tolerance at a node or between two, "
+                 "or the base inside an obstacle; raise nodes for obstacles smaller than the node spacing)",
+    CROSSED: "a rigid obstacle crossed on the way to the answer (no load path around it was found)",
 }
 
 # ``dyn`` array, shape (1 or B, DYN_WIDTH): dynamics parameters, SI units.

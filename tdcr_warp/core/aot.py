@@ -80,7 +80,7 @@ def _modules(v: Variant):
     import warp as wp
 
     from tdcr_warp.kernels.banded import band_solve
-    from tdcr_warp.kernels.contact import make_contact_kernel
+    from tdcr_warp.kernels.contact import make_contact_kernel, make_interval_kernels
     from tdcr_warp.kernels.history import make_history_kernels
     from tdcr_warp.kernels.segments import make_segment_kernel
     from tdcr_warp.kernels.shooting import make_shooting_kernels
@@ -91,6 +91,7 @@ def _modules(v: Variant):
     if v.dynamic:
         mods.append(make_history_kernels(dtype).end_step.module)
     if v.features.contact:  # the contact outputs (one module for every precision and variant)
+        make_interval_kernels(dtype, v.dynamic)  # the same module: built with it
         mods.append(make_contact_kernel(dtype, v.dynamic).module)
     if segmented(v) is not None:  # multiple shooting: its segments, and the banded Newton solve (one module)
         mods.append(make_segment_kernel(dtype, v.integrator, v.model, v.dynamic, v.rod, segmented(v)).module)

@@ -12,7 +12,10 @@ neighbours.
 
 from __future__ import annotations
 
+from contextlib import contextmanager
+
 import numpy as np
+import warp as wp
 
 from tdcr_warp.core.solver import Shooting
 from tdcr_warp.kernels import layout
@@ -68,14 +71,12 @@ def continuation_steps(x0: np.ndarray, minimum: int) -> tuple[np.ndarray, np.nda
     return finite, load > LARGE_LOAD, steps
 
 
-def load_continuation(sh: Shooting, rod0: np.ndarray, pforce0: np.ndarray, tau: np.ndarray, x0: np.ndarray,
-                      mask: np.ndarray, steps: np.ndarray, newton: dict, lengths=None) -> None:
-    """Statics: tensions and external loads (gravity, tip wrench, point forces) of the rods in
-    ``mask`` scaled by lam, from the straight-rod start scaled likewise (it is linear in the
-    loads). ``lengths`` = (free, avail) under displacement control: the length given to each
-    displaced tendon goes from its straight-rod path ``free`` to ``avail`` (the start is linear
-    in it too). Afterwards the rods' own tables are back in place, and their iterations and
-    integrations are the sums over the path."""
+@contextmanager
+def scaled_loads(sh: Shooting, rod0: np.ndarray, pforce0: np.ndarray, tau: np.ndarray, lengths=None):
+    """Within: ``set_load(lam)`` (b,) scales the tensions and external loads (gravity, tip wrench,
+    point forces) of every rod by its lam (under displacement control, ``lengths`` = (free, avail):
+    the length given to each displaced tendon goes from its straight-rod path ``free`` to
+    ``avail``); afterwards the rods' own tables and command are back in place."""
     md = sh.model
     own_rod, own_pf = md.rod, md.pforce
     rod = np.array(np.broadcast_to(rod0, (sh.b, rod0.shape[1])))
@@ -95,11 +96,31 @@ def load_continuation(sh: Shooting, rod0: np.ndarray, pforce0: np.ndarray, tau: 
                        lengths[0] + lam[:, None] * (lengths[1] - lengths[0]))
 
     try:
-        iters, shots = follow(sh, set_load, steps, mask, x0 * (1 / steps)[:, None], newton)
+        yield set_load
     finally:
         md.rod, md.pforce = own_rod, own_pf
         sh.set_command(tau, None if lengths is None else lengths[1])
+
+
+def load_continuation(sh: Shooting, loads: tuple, x0: np.ndarray, mask: np.ndarray, steps: np.ndarray,
+                      newton: dict) -> None:
+    """Statics: tensions and external loads of the rods in ``mask`` scaled by lam (``loads`` as
+    ``scaled_loads`` takes them), from the straight-rod start scaled likewise (it is linear in the
+    loads). Afterwards the rods' own tables are back in place, and their iterations and
+    integrations are the sums over the path."""
+    with scaled_loads(sh, *loads) as set_load:
+        iters, shots = follow(sh, set_load, steps, mask, x0 * (1 / steps)[:, None], newton)
     _report(sh, iters, shots)
+
+
+def unloaded_shapes(sh: Shooting, loads: tuple) -> tuple:
+    """The rods' shapes with every load and tension of ``loads`` (as ``scaled_loads`` takes them)
+    at zero (one integration from zero unknowns): device copies of their node positions and
+    orientations (b, N+1)."""
+    with scaled_loads(sh, *loads) as set_load:
+        set_load(np.zeros(sh.b))
+        sh.probe(np.zeros((sh.b, sh.kern.nu)), shapes=True)
+    return wp.clone(sh.probe.nodes.p), wp.clone(sh.probe.nodes.R)
 
 
 def holding_path(sh: Shooting, tipc: np.ndarray, compliance: np.ndarray, start: np.ndarray, mask: np.ndarray,

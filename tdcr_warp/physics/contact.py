@@ -32,7 +32,7 @@ import warp as wp
 
 from tdcr_warp.core.solver import Shooting
 from tdcr_warp.kernels import layout
-from tdcr_warp.kernels.contact import make_contact_kernel
+from tdcr_warp.kernels.contact import make_contact_kernel, make_interval_kernels
 from tdcr_warp.physics.segments import SEGMENT_REACH, SINGLE_REACH, SWITCH_REACH, Segments
 
 __all__ = ["Contact", "chunk_contacts", "contact_segments", "penetration"]
@@ -75,11 +75,14 @@ class ContactState:
         self.per_len = np.broadcast_to(rod[:, layout.FORCE_SCALE] / rod[:, layout.LENGTH], (b,))  # E I / L^3
         self.rod = rod
         self.table = self.start_table.copy()
+        self.crossed = np.zeros(b, dtype=bool)  # tdcr_warp/physics/crossing.py
         sh.model.obst = sh.dev.array(self.table)
         self.kernel = make_contact_kernel(sh.dev.wdtype, sh.dynamic)
+        self.kernels = make_interval_kernels(sh.dev.wdtype, sh.dynamic)
         self.force = wp.zeros((b, n1), dtype=sh.kern.vec3, device=sh.device)
         self.gap = wp.zeros((b, n1, table.shape[1]), dtype=sh.dev.wdtype, device=sh.device)
         self.pressing = wp.zeros_like(self.gap)
+        self.igap = wp.zeros((b, n1 - 1, table.shape[1]), dtype=sh.dev.wdtype, device=sh.device)
 
     def reset(self, stiffness: np.ndarray | None) -> None:
         """A cold start: every obstacle SOFT times its stiffness (``settle`` climbs back); a warm
@@ -87,6 +90,7 @@ class ContactState:
         need not be climbed again), a compliant one at its own."""
         self.table = self.start_table.copy()
         self.segs = self.count = None  # every rod by single shooting again
+        self.crossed = np.zeros(self.sh.b, dtype=bool)  # tdcr_warp/physics/crossing.py
         k = self.table[..., layout.OB_STIFF]
         if stiffness is not None and stiffness.shape == self.table.shape[:2]:
             self.table[..., layout.OB_STIFF] = np.where(self.rigid[None], stiffness, k)
@@ -110,6 +114,14 @@ class ContactState:
                                                           self.pressing], device=sh.device)
         gap = sh.host(self.gap).get(np.float64)
         return sh.host(self.force).get(np.float64), gap, sh.host(self.pressing).get(np.float64) if sh.dynamic else gap
+
+    def measure_intervals(self) -> np.ndarray:
+        """(b, N, O) the smallest gap to each obstacle along every interval of the last stored
+        shapes [m] (kernels/contact.py: the centre line between the nodes, not only at them)."""
+        sh, out = self.sh, self.sh.nodes
+        wp.launch(self.kernels.intervals, dim=(sh.b, sh.n1 - 1), inputs=[sh.model, out.p, out.R, self.igap],
+                  device=sh.device)
+        return sh.host(self.igap).get(np.float64)
 
     def half_band(self) -> np.ndarray:
         """(b, O) half the width of the law's rounded band, eps / 2 = E I / (2 L^3 k) [m]: a node
@@ -146,15 +158,21 @@ class ContactState:
             self.table[..., layout.OB_STIFF] = self.goal
             self.sh.dev.put(self.sh.model.obst, self.table)
 
-    def results(self, tolerance: float, status: np.ndarray) -> dict[str, np.ndarray]:
+    def results(self, tolerance: float, status: np.ndarray, between: bool = True) -> dict[str, np.ndarray]:
         """What a solve reports of contact, and ``status`` with PENETRATION where a rigid
-        obstacle is penetrated beyond the tolerance (or the base is inside one)."""
+        obstacle is penetrated beyond the tolerance at a node or between two (or the base is
+        inside one), CROSSED where one was crossed on the way (``crossed``). ``between`` False:
+        the nodes alone decide PENETRATION (what stiffening and splitting can mend; the schedule's
+        own decisions), and ``interval_gap`` is not measured (None)."""
         force, gap, _pressing = self.measure()
+        igap = self.measure_intervals() if between else None
         limit = tolerance * self.reach[:, None]
-        bad = (((penetration(gap) > limit) | (self.band(gap) > limit)) & self.rigid[None]).any(axis=1)
+        deepest = penetration(gap) if igap is None else np.maximum(penetration(gap), penetration(igap))
+        bad = (((deepest > limit) | (self.band(gap) > limit)) & self.rigid[None]).any(axis=1)
         bad |= (gap[:, 0] < -limit).any(axis=1)
-        return {"contact_force": force, "contact_gap": gap, "contact_stiffness": self.table[..., layout.OB_STIFF].copy(),
-                "status": np.where(bad, status | layout.PENETRATION, status)}
+        return {"contact_force": force, "contact_gap": gap, "interval_gap": igap,
+                "contact_stiffness": self.table[..., layout.OB_STIFF].copy(),
+                "status": np.where(bad, status | layout.PENETRATION, status) | np.where(self.crossed, layout.CROSSED, 0)}
 
 
 class ContactSplitting(ContactState):

@@ -467,8 +467,8 @@ class _Chunk:
 
     def inside(self) -> np.ndarray:
         """(b,) bool: the last evaluated shapes penetrate an obstacle beyond the tolerance."""
-        status = self.contact.results(self.sim.opts.contact_tolerance, np.zeros(self.sh.b, dtype=np.int32))["status"]
-        return status != 0
+        none = np.zeros(self.sh.b, dtype=np.int32)
+        return self.contact.results(self.sim.opts.contact_tolerance, none, False)["status"] != 0
 
     def _end_step(self, at_rest: bool = False) -> None:
         sh, out = self.sh, self.sh.nodes
@@ -516,7 +516,8 @@ class _Chunk:
             _climb_anew(self, alive, tol)
             self.contact.stiffen(tol, self.sim.opts.contact_steps, newton, alive)
             found = self.contact.results(tol, sh.status())
-            status, pen = found["status"], penetration(found["contact_gap"]).max(axis=1)
+            status = found["status"]
+            pen = np.maximum(penetration(found["contact_gap"]), penetration(found["interval_gap"])).max(axis=1)
         ok = ((status & layout.CONVERGED) != 0) & alive
         sh.host(self.ok).put(ok)
         self._end_step()
@@ -570,7 +571,7 @@ def _climb_anew(chunk: _Chunk, alive: np.ndarray, tol: float) -> None:
     sh, c = chunk.sh, chunk.contact
     rods = alive & sh.converged() & ~chunk.split
     if c.armed and rods.any():
-        rods &= (c.results(tol, sh.status())["status"] & layout.PENETRATION) != 0
+        rods &= (c.results(tol, sh.status(), False)["status"] & layout.PENETRATION) != 0
         rods &= c.growth(c.table[..., layout.OB_STIFF]) > math.log(SWITCH_REACH[c.precision])
         if rods.any():
             c.soften(rods, chunk.x_prev, chunk.newton)

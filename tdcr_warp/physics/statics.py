@@ -30,6 +30,7 @@ from tdcr_warp.model.options import StaticOptions, describe_status
 from tdcr_warp.model.robot import InputError, Robot, check_command, check_slip, real_array, require_memory
 from tdcr_warp.physics.assessment import Assessor
 from tdcr_warp.physics.contact import Contact, chunk_contacts, penetration
+from tdcr_warp.physics.crossing import uncross
 from tdcr_warp.physics.segments import Segments
 from tdcr_warp.physics.sensitivity import parameter_tables
 from tdcr_warp.physics.slack import available_lengths, linear_tensions, settle_slack, tendon_compliance
@@ -98,9 +99,10 @@ class StaticSolution(RodRows):
 
     With obstacles (None otherwise; tdcr_warp/physics/contact.py): contact_force (B, N+1, 3) the obstacles' point
     force on each node [N] (world frame; n jumps by it there), contact_gap (B, N+1, O) each node's gap to each
-    obstacle [m] (negative: penetration), contact_stiffness (B, O) the penalty stiffness each obstacle was solved
-    with [N/m per m]; ``penetration`` (B, O) the deepest penetration of each [m]; a rigid one beyond
-    ``contact_tolerance`` flags PENETRATION. With a constrained tip: tip_reaction (B, 3) the force it takes [N]
+    obstacle [m] (negative: penetration), interval_gap (B, N, O) the smallest gap along each interval between
+    two nodes [m] (the centre line checked between the nodes), contact_stiffness (B, O) the penalty stiffness each
+    obstacle was solved with [N/m per m]; ``penetration`` (B, O) the deepest penetration of each [m], at a node or
+    between two; a rigid one beyond ``contact_tolerance`` flags PENETRATION. With a constrained tip: tip_reaction (B, 3) the force it takes [N]
     (world). segments (B,) int: the segments of multiple shooting each rod was solved in (1: single shooting;
     ``StaticOptions.segments``); a split rod's sensitivities are NaN and its stability is not assessed.
 
@@ -156,6 +158,7 @@ class StaticSolution(RodRows):
     tip_reaction: np.ndarray | None = None
     contact_force: np.ndarray | None = None
     contact_gap: np.ndarray | None = None
+    interval_gap: np.ndarray | None = None
     contact_stiffness: np.ndarray | None = None
     segments: np.ndarray | None = None
 
@@ -170,7 +173,7 @@ class StaticSolution(RodRows):
         """(B,) bool: converged, not found unstable and not through an obstacle (an unstable
         equilibrium or an unresolved contact is never a success;
         a rod the test could not assess counts as converged, see ``stability_reasons``)."""
-        return self.converged & ((self.status & (layout.UNSTABLE | layout.PENETRATION)) == 0)
+        return self.converged & ((self.status & (layout.UNSTABLE | layout.PENETRATION | layout.CROSSED)) == 0)
 
     def stability_reasons(self) -> list[str] | None:
         """One string per rod: "stable", "unstable: k directions", or why it was not assessed
@@ -192,8 +195,11 @@ class StaticSolution(RodRows):
 
     @property
     def penetration(self) -> np.ndarray | None:
-        """(B, O) the deepest penetration of each obstacle [m] (0 where none; None without obstacles)."""
-        return None if self.contact_gap is None else penetration(self.contact_gap)
+        """(B, O) the deepest penetration of each obstacle [m], at a node or between two (0 where
+        none; None without obstacles)."""
+        if self.contact_gap is None:
+            return None
+        return np.maximum(penetration(self.contact_gap), penetration(self.interval_gap))
 
     @property
     def tip_position(self) -> np.ndarray:
@@ -391,12 +397,10 @@ class StaticProblem:
             finite, large, steps = continuation_steps(x0, self.opts.continuation)
             redo = finite & (~sh.converged() | large)
             if redo.any():
-                free = np.broadcast_to(tables.straight.path, job.tau.shape)[lo:hi]
-                load_continuation(sh, tables.rows("rod", lo, hi), tables.rows("pforce", lo, hi), job.tau[lo:hi], x0,
-                                  redo, steps, newton, None if avail is None else (free, avail))
+                load_continuation(sh, _loads(tables, job, lo, hi), x0, redo, steps, newton)
         if job.free is not None and not sh.converged().all():
             _hold(sh, tables, lo, hi, x0, newton)
-        segments = _contact_and_split(self, sh, lo, hi, contact, x0, newton)
+        segments = _contact_and_split(self, sh, lo, hi, contact, x0, newton, None if job.warm else _loads(tables, job, lo, hi))
         if len(self.disp):
             settle_slack(sh, taut, self.disp, self.j_of, newton)
         if job.profile is not None:
@@ -443,22 +447,35 @@ class _Job:
     free: np.ndarray | None = None
 
 
+def _loads(tables: Tables, job: _Job, lo: int, hi: int) -> tuple:
+    """The loads of rods lo:hi as a load path scales them (tdcr_warp/core/homotopy.py
+    ``scaled_loads``): rod rows, point force rows, tensions and, under displacement control, the
+    lengths (each tendon's path along the straight rod, then the length given to it)."""
+    avail = None if job.avail is None else job.avail[lo:hi]
+    lengths = None if avail is None else (np.broadcast_to(tables.straight.path, job.tau.shape)[lo:hi], avail)
+    return tables.rows("rod", lo, hi), tables.rows("pforce", lo, hi), job.tau[lo:hi], lengths
+
+
 def _contact_and_split(problem: StaticProblem, sh: Shooting, lo: int, hi: int, contact: Contact | None,
-                       x0: np.ndarray, newton: dict) -> np.ndarray:
+                       x0: np.ndarray, newton: dict, loads: tuple | None) -> np.ndarray:
     """The contact of a solved chunk settled and stiffened (tdcr_warp/physics/contact.py; a rod
-    single shooting cannot carry up the climb split), then multiple shooting
+    single shooting cannot carry up the climb split), a cold solve's rods that may have crossed a
+    rigid obstacle sent along a load path (``loads``: ``_loads``, tdcr_warp/physics/crossing.py;
+    None: a warm start, whose side is its own), then multiple shooting
     (``StaticOptions.segments``, tdcr_warp/physics/segments.py): the rods whose contact is still
     unresolved (None), or every converged rod (M), solved again in segments from their last
     shapes and stiffened on; returns (b,) the segments each rod ends with (1: single shooting)."""
     if contact:
         contact.settle(x0, newton)
         contact.stiffen(problem.opts.contact_tolerance, problem.opts.contact_steps, newton)
+        if loads is not None:
+            uncross(contact, loads, x0, newton, problem.opts.contact_tolerance, problem.opts.contact_steps)
     count, b = problem.armed, hi - lo
     ok, single = sh.converged(), np.ones(b, dtype=int)
     if count == 1 or (count is None and not contact):
         return single
     tol = problem.opts.contact_tolerance
-    rods = ok if count else ok & ((contact.results(tol, sh.status())["status"] & layout.PENETRATION) != 0)
+    rods = ok if count else ok & ((contact.results(tol, sh.status(), False)["status"] & layout.PENETRATION) != 0)
     if contact:
         rods &= ~contact.split_mask()  # (split in a climb already)
         if rods.any():
