@@ -58,8 +58,10 @@ from .layout import (
     BENT_TUBE,
     CAPSULE,
     FORCE_SCALE,
+    KBT,
     LENGTH,
     OB_A,
+    OB_ALONG,
     OB_ANGLE,
     OB_B,
     OB_BEND,
@@ -72,6 +74,7 @@ from .layout import (
     PLANE,
     SPHERE,
     TUBE,
+    USTAR,
 )
 from .structs import make_rows, make_structs
 
@@ -238,14 +241,17 @@ def make_chords(dtype, dynamic: bool):
 
 @functools.cache
 def make_contact(dtype, dynamic: bool):
-    """``surface`` and ``contact_force`` for one precision."""
+    """``surface``, ``pressed`` and ``contact_force`` for one precision."""
     vec3 = wp.types.vector(3, dtype)
+    mat33 = wp.types.matrix((3, 3), dtype)
     zero = dtype(0.0)
     half = dtype(0.5)
     far = dtype(FAR)
     Model = make_structs(dtype, dynamic).Model
-    row = make_rows(dtype, dynamic).row
+    rows = make_rows(dtype, dynamic)
+    row = rows.row
     surface = make_surface(dtype, dynamic).surface
+    nearest_on_chord = make_chords(dtype, dynamic).nearest_on_chord
 
     @wp.func
     def law(delta: dtype, eps: dtype):
@@ -259,9 +265,27 @@ def make_contact(dtype, dynamic: bool):
         return phi
 
     @wp.func
-    def contact_force(md: Model, b: int, node: int, p: vec3, vel: vec3):
-        """The obstacles' point force on ``node`` at p moving at vel (world frame; dynamics) [N]
-        and the smallest gap there [m] (negative: penetration)."""
+    def pressed(md: Model, b: int, i: int, j: int, node: int, p: vec3, R: mat33, m: vec3):
+        """The distance to obstacle j (row i) and its normal where the law measures it: at the
+        node's point p, or with OB_ALONG (a sphere or capsule) at the point of the node's share of
+        the centre line nearest its core, on the local curve p + sigma t + sigma^2 / 2 R (u x e3)
+        (t = R e3, u = Kbt^-1 R^T m + u* the curvature; statics)."""
+        kind = int(md.obst[i, j, OB_KIND])
+        q = p
+        if md.obst[i, j, OB_ALONG] > zero and (kind == SPHERE or kind == CAPSULE):
+            ig = row(b, md.grid)
+            h_lo = half * (md.grid[ig, node] - md.grid[ig, wp.max(node - 1, 0)])
+            h_hi = half * (md.grid[ig, wp.min(node + 1, md.grid.shape[1] - 1)] - md.grid[ig, node])
+            t = vec3(R[0, 2], R[1, 2], R[2, 2])
+            u = wp.cw_div(wp.transpose(R) * m, rows.rvec(md, b, KBT)) + rows.rvec(md, b, USTAR)
+            sigma = -h_lo + (h_lo + h_hi) * nearest_on_chord(md, i, j, p - h_lo * t, p + h_hi * t)
+            q = p + sigma * t + (half * sigma * sigma) * (R * wp.cross(u, vec3(zero, zero, dtype(1.0))))
+        return surface(md, i, j, q)
+
+    @wp.func
+    def contact_force(md: Model, b: int, node: int, p: vec3, R: mat33, m: vec3, vel: vec3):
+        """The obstacles' point force on ``node`` at p (orientation R, internal moment m) moving at
+        vel (world frame; dynamics) [N] and the smallest gap the law saw [m] (negative: penetration)."""
         i = row(b, md.obst)
         ig = row(b, md.grid)
         n_int = md.grid.shape[1] - 1
@@ -273,7 +297,7 @@ def make_contact(dtype, dynamic: bool):
         force = vec3()
         gap = far
         for j in range(md.n_obst):
-            d, nrm = surface(md, i, j, p)
+            d, nrm = pressed(md, b, i, j, node, p, R, m)
             g = d - md.obst[i, j, OB_REACH]
             gap = wp.min(gap, g)
             k = md.obst[i, j, OB_STIFF]
@@ -287,14 +311,14 @@ def make_contact(dtype, dynamic: bool):
             force += (k * share * phi) * nrm
         return force, gap
 
-    return SimpleNamespace(surface=surface, contact_force=contact_force)
+    return SimpleNamespace(surface=surface, pressed=pressed, contact_force=contact_force)
 
 
 @functools.cache
 def make_contact_kernel(dtype, dynamic: bool = False):
     """The kernel ``contact_nodes``: at every node of solved shapes (positions ``pos``) the
     contact force [N], the gap to each obstacle [m] and the gap where that obstacle's stiffness
-    holds the node (``pressing``; FAR where its damping takes half the elastic force or more: in
+    holds the node (``pressing``: the gap the law sees, ``pressed``; FAR where its damping takes half the elastic force or more: in
     dynamics a node leaving the surface at 1 / (2 damping) or faster, whose depth its way out
     sets, not the stiffness; at 1 / damping it carries no force) (outputs; compiled only for
     scenes with obstacles). In dynamics the force is damped by the nodes' velocities R q (``rot`` and
@@ -307,21 +331,22 @@ def make_contact_kernel(dtype, dynamic: bool = False):
 
     @wp.kernel
     def contact_nodes(md: Model, pos: wp.array2d(dtype=vec3), rot: wp.array2d(dtype=mat33),
-                      vel: wp.array2d(dtype=vec3), force: wp.array2d(dtype=vec3), gap: wp.array3d(dtype=dtype),
-                      pressing: wp.array3d(dtype=dtype)):
+                      mom: wp.array2d(dtype=vec3), vel: wp.array2d(dtype=vec3), force: wp.array2d(dtype=vec3),
+                      gap: wp.array3d(dtype=dtype), pressing: wp.array3d(dtype=dtype)):
         b, k = wp.tid()
         p = pos[b, k]
+        R = rot[b, k]
         pt = vec3()
         if wp.static(dynamic):
-            pt = rot[b, k] * vel[b, k]
-        f, _g = funcs.contact_force(md, b, k, p, pt)
+            pt = R * vel[b, k]
+        f, _g = funcs.contact_force(md, b, k, p, R, mom[b, k], pt)
         force[b, k] = f
         i = row(b, md.obst)
         for j in range(md.n_obst):
-            d, nrm = funcs.surface(md, i, j, p)
-            g = d - md.obst[i, j, OB_REACH]
-            gap[b, k, j] = g
-            pressing[b, k, j] = g
+            d, _nd = funcs.surface(md, i, j, p)
+            gap[b, k, j] = d - md.obst[i, j, OB_REACH]
+            dl, nrm = funcs.pressed(md, b, i, j, k, p, R, mom[b, k])
+            pressing[b, k, j] = dl - md.obst[i, j, OB_REACH]
             if wp.static(dynamic):
                 if md.obst[i, j, OB_DAMP] * wp.dot(nrm, pt) >= dtype(0.5):
                     pressing[b, k, j] = dtype(FAR)

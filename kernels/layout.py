@@ -37,9 +37,12 @@ TENDON_WIDTH = 10
 #   OB_STIFF          penalty stiffness k of the contact [N/m per m of rod]
 #   OB_REACH          the rod's contact radius (its radius) [m]
 #   OB_DAMP           the contact's Hunt-Crossley damping factor [s/m] (dynamics)
+#   OB_ALONG          1: a sphere or capsule pushes a node by the nearest point of its share of the
+#                     centre line (tdcr_warp/physics/crossing.py), 0: by the node's point
 PLANE, SPHERE, CAPSULE, TUBE, BENT_TUBE = range(5)
-OB_KIND, OB_A, OB_B, OB_C, OB_RADIUS, OB_BEND, OB_ANGLE, OB_STIFF, OB_REACH, OB_DAMP = 0, 1, 4, 7, 10, 11, 12, 13, 14, 15
-OB_WIDTH = 16
+OB_KIND, OB_A, OB_B, OB_C, OB_RADIUS, OB_BEND, OB_ANGLE, OB_STIFF, OB_REACH, OB_DAMP, OB_ALONG = (
+    0, 1, 4, 7, 10, 11, 12, 13, 14, 15, 16)
+OB_WIDTH = 17
 
 # ``tipc`` array, shape (1 or B, TC_WIDTH): a constrained tip (Robot.tip_constraint). TC_POINT..+2
 # the point c the tip is held to; TC_BASIS..+8 up to three unit vectors e_i: the tip is held

@@ -105,7 +105,7 @@ def make_node_jumps(dtype, integrator: str, model: str, dynamic: bool, rod: str,
             return n, m, E
         touch = int(0)
         if wp.static(features.contact):
-            fc, _gap = contact_force(md, b, node, p, R * q)
+            fc, _gap = contact_force(md, b, node, p, R, m, R * q)
             if fc[0] != zero or fc[1] != zero or fc[2] != zero:
                 n = n - fc
                 touch = 1

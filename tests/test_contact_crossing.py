@@ -18,6 +18,11 @@ WIRE = dict(length=0.2, radius=0.5e-3, youngs_modulus=60e9, poisson_ratio=0.3, d
 LIMIT = 0.01 * WIRE["radius"]  # the default contact tolerance [m]
 
 
+def closest(sol) -> float:
+    """The smallest gap of rod 0's centre line to obstacle 0, at the nodes and between them [m]."""
+    return min(sol.contact_gap[0, :, 0].min(), sol.interval_gap[0, :, 0].min())
+
+
 def bar_robot(x_bar=0.008):
     """The wire with a tendon at +x and a rigid bar (capsule of radius 3 mm) across its way at
     z = 0.15 m, x = ``x_bar``."""
@@ -53,7 +58,7 @@ def test_a_wire_pulled_at_a_bar_never_ends_beyond_it(tension):
         assert not beyond
     if tension <= 2.0:  # the load path reaches these: resting on the bar (5 N: the path ends, flagged)
         assert sol.converged[0] and not sol.status[0] & layout.CROSSED
-        assert -2 * LIMIT < sol.contact_gap[0, :, 0].min() < LIMIT
+        assert -LIMIT < closest(sol) < LIMIT
 
 
 def test_a_wire_sagging_onto_a_small_sphere_rests_on_it():
@@ -64,7 +69,7 @@ def test_a_wire_sagging_onto_a_small_sphere_rests_on_it():
     sol = solve_static(rob, NONE, nodes=200)
     assert sol.converged[0] and not sol.status[0] & layout.CROSSED
     assert sol.positions[0, -1, 0] > -0.012  # the tip on the near side of the sphere's centre
-    assert -2 * LIMIT < sol.contact_gap[0, :, 0].min() < LIMIT
+    assert -LIMIT < closest(sol) < LIMIT
 
 
 def first_crossing(line: np.ndarray, height: float) -> float | None:
@@ -118,4 +123,4 @@ def test_property_successes_stay_outside_and_on_their_side():
     it). A rod that is not a success is flagged with a reason; some are successes (the property
     is not vacuous)."""
     successes = [check_scene(seed) for seed in range(24)]
-    assert sum(successes) >= 6, successes
+    assert sum(successes) >= 12, successes

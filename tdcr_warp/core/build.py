@@ -106,13 +106,14 @@ RIGID_START = 1e-2  # a rigid obstacle's first stiffness: a load of E I / L^3 pe
 
 def pack_obstacles(robot: Robot) -> np.ndarray:
     """(1|B, O, layout.OB_WIDTH): each obstacle's geometry, its penalty stiffness (a rigid one's
-    first, k0 = E I / (L^3 0.01 r): stiffened by tdcr_warp.physics.contact), the rod's radius and
-    the contact's damping."""
+    first, k0 = E I / (L^3 0.01 r): stiffened by tdcr_warp.physics.contact), the rod's radius,
+    the contact's damping and OB_ALONG 0 (the law at the node's point; tdcr_warp.physics.crossing
+    sets it for the rods that need it)."""
     if not robot.obstacles:
         return np.zeros((1, 0, layout.OB_WIDTH))
     k0 = robot.section()["kbt"][:, 0] / (robot.length**3 * RIGID_START * robot.radius)
     rows = [_columns([ob.geometry(), (k0 if ob.rigid else ob.stiffness)[:, None], robot.radius[:, None],
-                      ob.damping[:, None]],
+                      ob.damping[:, None], np.zeros((1, 1))],
                      layout.OB_WIDTH) for ob in robot.obstacles]
     b = max(r.shape[0] for r in rows)
     return np.stack([np.broadcast_to(r, (b, layout.OB_WIDTH)) for r in rows], axis=1)

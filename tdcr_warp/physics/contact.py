@@ -106,14 +106,14 @@ class ContactState:
     def measure(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The contact force (b, N+1, 3) [N], the gap to each obstacle (b, N+1, O) [m] at the
         nodes of the last stored shapes, and the gap where the obstacle can push (b, N+1, O) [m]
-        (statics: the gap; dynamics: FAR at a node leaving at 1 / (2 damping) or faster, whose
-        depth no stiffness sets: the schedule looks at this one, the PENETRATION flag at the gap)."""
+        (the gap the law sees: the node's, or its share's with OB_ALONG; in dynamics FAR at a node
+        leaving at 1 / (2 damping) or faster, whose depth no stiffness sets: the schedule looks at
+        this one, the PENETRATION flag at the gap)."""
         sh, out = self.sh, self.sh.nodes
         vel = out.q if sh.dynamic else out.p  # statics: no velocities (the kernel reads none)
-        wp.launch(self.kernel, dim=(sh.b, sh.n1), inputs=[sh.model, out.p, out.R, vel, self.force, self.gap,
+        wp.launch(self.kernel, dim=(sh.b, sh.n1), inputs=[sh.model, out.p, out.R, out.m, vel, self.force, self.gap,
                                                           self.pressing], device=sh.device)
-        gap = sh.host(self.gap).get(np.float64)
-        return sh.host(self.force).get(np.float64), gap, sh.host(self.pressing).get(np.float64) if sh.dynamic else gap
+        return tuple(sh.host(a).get(np.float64) for a in (self.force, self.gap, self.pressing))
 
     def measure_intervals(self) -> np.ndarray:
         """(b, N, O) the smallest gap to each obstacle along every interval of the last stored

@@ -1,4 +1,4 @@
-"""Rigid obstacles are never crossed on the way to an answer.
+"""Rigid obstacles are never crossed on the way to an answer, nor reached into between nodes.
 
 A cold solve starts its obstacles soft (tdcr_warp/physics/contact.py) so that Newton from the
 straight rod meets a problem close to the free one. A load that the soft obstacle cannot hold
@@ -17,6 +17,14 @@ its size), and its contact stiffened again. A rod whose path fails keeps its ans
 CROSSED; a rod split into segments (multiple shooting) that may have
 crossed is flagged at once. Lumens and planes need no check: a rod through their wall ends
 outside, and the gaps say so.
+
+Between nodes: the law pushes a node by the gap at its own point, so a sphere or bar can reach
+in between two nodes it holds off (kernels/contact.py checks the intervals). A rod whose centre
+line does so beyond the tolerance is solved again (``lean_along``) with those obstacles pushing
+each node by the nearest point of its share of the centre line (OB_ALONG: the local curve
+through the node with its tangent and curvature), from a tenth of the stiffness climbed back
+and stiffened; a rod that fails, or whose way there crosses the obstacle, keeps its answer
+(flagged PENETRATION by the check). Rods that need neither are untouched, bit for bit.
 """
 
 from __future__ import annotations
@@ -26,13 +34,14 @@ import warp as wp
 
 from tdcr_warp.core.homotopy import MAX_CONTINUATION, scaled_loads, unloaded_shapes
 from tdcr_warp.kernels import layout
-from tdcr_warp.physics.contact import Contact
+from tdcr_warp.physics.contact import Contact, penetration
 
-__all__ = ["CORE", "STEP_REACH", "uncross"]
+__all__ = ["CORE", "STEP_REACH", "lean_along", "uncross"]
 
 CORE = 0.5  # a straight way nearer the core than this fraction of (obstacle radius + rod radius) may cross
 STEP_REACH = 0.25  # a load path's step moves no point by more than this fraction of that radius
 MIN_STEP = 1e-3  # a load path fails where its step shrinks below this fraction of its first
+ALONG_SOFT = 0.1  # OB_ALONG is switched on at this fraction of the stiffness, then climbed back
 SOLID = (layout.SPHERE, layout.CAPSULE)
 
 
@@ -141,3 +150,40 @@ def uncross(contact: Contact, loads: tuple, x0: np.ndarray, newton: dict, tolera
         it, sn = np.where(walk.failed, it + it2, it), np.where(walk.failed, sn + sn2, sn)
     sh.set_counts(np.where(rods, iters + it, iters), np.where(rods, shots + sn, shots))
     contact.crossed |= walk.failed
+
+
+def lean_along(contact: Contact, tolerance: float, steps: int, newton: dict) -> None:
+    """The converged rods whose centre line reaches into a rigid sphere or capsule between two
+    nodes beyond ``tolerance`` radii solved again from their answers with those obstacles pushing
+    each node by the nearest point of its share of the centre line (OB_ALONG, kernels/contact.py
+    ``pressed``), ALONG_SOFT times as stiff, climbed back (``Contact.climb``) and stiffened
+    (``steps``: the contact's); a rod that fails, or whose way there crosses the obstacle
+    (``_core``), keeps its answer. The other rods are untouched (bit for bit)."""
+    sh = contact.sh
+    solid = _solid(contact)
+    if not solid.any():
+        return
+    limit = tolerance * contact.reach[:, None]
+    reaching = (penetration(contact.measure_intervals()) > limit) & solid & (contact.table[..., layout.OB_ALONG] == 0)
+    rods = sh.converged() & reaching.any(axis=1)
+    if not rods.any():
+        return
+    answer, table, (iters, shots) = sh.host(sh.newton.x).get(), contact.table.copy(), sh.counts()
+    before = (wp.clone(sh.nodes.p), wp.clone(sh.nodes.R))
+    contact.table[..., layout.OB_ALONG] = np.where(rods[:, None] & solid, 1.0, table[..., layout.OB_ALONG])
+    contact.table[rods, :, layout.OB_STIFF] *= ALONG_SOFT  # the law's point moves: from softer, climbed back
+    sh.dev.put(sh.model.obst, contact.table)
+    sh.solve(answer, mask=rods, fresh_jacobian=True, **newton)
+    it, sn = sh.counts()
+    iters, shots = np.where(rods, iters + it, iters), np.where(rods, shots + sn, shots)
+    contact.climb(rods & sh.converged(), table[..., layout.OB_STIFF], newton, iters, shots)
+    sh.set_counts(iters, shots)
+    contact.stiffen(tolerance, steps, newton, rods & sh.converged())
+    failed = rods & ~(sh.converged() & ~((_core(contact, before) < CORE) & solid).any(axis=1))
+    if failed.any():  # the answer as it was
+        contact.table[failed] = table[failed]
+        sh.dev.put(sh.model.obst, contact.table)
+        iters, shots = sh.counts()
+        sh.solve(answer, mask=failed, fresh_jacobian=True, **newton)
+        it, sn = sh.counts()
+        sh.set_counts(np.where(failed, iters + it, iters), np.where(failed, shots + sn, shots))

@@ -30,7 +30,7 @@ from tdcr_warp.model.options import StaticOptions, describe_status
 from tdcr_warp.model.robot import InputError, Robot, check_command, check_slip, real_array, require_memory
 from tdcr_warp.physics.assessment import Assessor
 from tdcr_warp.physics.contact import Contact, chunk_contacts, penetration
-from tdcr_warp.physics.crossing import uncross
+from tdcr_warp.physics.crossing import lean_along, uncross
 from tdcr_warp.physics.segments import Segments
 from tdcr_warp.physics.sensitivity import parameter_tables
 from tdcr_warp.physics.slack import available_lengths, linear_tensions, settle_slack, tendon_compliance
@@ -470,6 +470,7 @@ def _contact_and_split(problem: StaticProblem, sh: Shooting, lo: int, hi: int, c
         contact.stiffen(problem.opts.contact_tolerance, problem.opts.contact_steps, newton)
         if loads is not None:
             uncross(contact, loads, x0, newton, problem.opts.contact_tolerance, problem.opts.contact_steps)
+        lean_along(contact, problem.opts.contact_tolerance, problem.opts.contact_steps, newton)
     count, b = problem.armed, hi - lo
     ok, single = sh.converged(), np.ones(b, dtype=int)
     if count == 1 or (count is None and not contact):
