@@ -63,6 +63,7 @@ PRECISION_LIMITED = 32  # with CONVERGED: stopped at the round-off floor, residu
 UNSETTLED = 64  # displacement control: the taut / slack set of the tendons did not settle
 UNSTABLE = 128  # with CONVERGED: an equilibrium, but an unstable one (tdcr_warp/physics/stability.py)
 PENETRATION = 256  # contact not resolved: a rigid obstacle penetrated beyond tolerance, or the base inside one
+ENERGY = 512  # dynamics, with CONVERGED: the step created mechanical energy beyond energy_tolerance (physics/dynamics.py)
 
 STATUS_NAMES = {
     CONVERGED: "converged",
@@ -74,6 +75,7 @@ STATUS_NAMES = {
     UNSETTLED: "taut/slack set of the displaced tendons did not settle",
     UNSTABLE: "unstable equilibrium",
     PENETRATION: "contact not resolved (a rigid obstacle penetrated beyond contact_tolerance, or the base inside an obstacle)",
+    ENERGY: "energy gained (free motion created mechanical energy beyond energy_tolerance)",
 }
 
 # ``dyn`` array, shape (1 or B, DYN_WIDTH): dynamics parameters, SI units.

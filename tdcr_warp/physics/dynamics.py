@@ -23,6 +23,7 @@ from tdcr_warp.core.parallel import parallel, split
 from tdcr_warp.core.progress import Progress
 from tdcr_warp.core.solver import Shooting
 from tdcr_warp.kernels import layout
+from tdcr_warp.kernels.energy import make_energy_kernels
 from tdcr_warp.kernels.history import make_history_kernels
 from tdcr_warp.kernels.segments import segmentable
 from tdcr_warp.model.options import StaticOptions
@@ -32,7 +33,12 @@ from tdcr_warp.physics.segments import SWITCH_REACH, Segments, segments_needed, 
 from tdcr_warp.physics.slack import available_lengths, settle_slack
 from tdcr_warp.physics.statics import StaticSolution, armed_segments, reference_lengths, solve_static
 
-__all__ = ["Simulator", "StepResult", "Trajectory", "bdf_alpha_coefficients"]
+__all__ = ["Simulator", "StepResult", "Trajectory", "bdf_alpha_coefficients", "bending_layer_ratio"]
+
+# The largest h / l_b (``bending_layer_ratio``) at which the undamped wire released from a tendon's
+# pull kept its energy for 600 steps, per alpha, descending (experiments/bdf_alpha_energy.py,
+# docs/solver.md); between two alphas the lower one's limit holds, below the last its limit.
+LAYER_LIMITS = ((0.0, 0.0), )
 
 
 def bdf_alpha_coefficients(dt: float, alpha: float) -> tuple[float, float, float, float]:
@@ -89,6 +95,30 @@ class Trajectory:
 
     def to_npz(self, path) -> None:
         np.savez_compressed(path, **asdict(self))
+
+
+def bending_layer_ratio(robot: Robot, h: float, dt: float, alpha: float) -> np.ndarray:
+    """(1 or B,) h / l_b: an interval h [m] of the grid over the length l_b = ((EI + c0 Bbt) /
+    (rho A c0^2))^(1/4) [m] over which one step's inertia bends the rod (the boundary layer of its
+    problem in s; the softer bending axis). Beyond a limit that shrinks as alpha -> -0.5
+    (``LAYER_LIMITS``) undamped motion gains energy."""
+    c0 = bdf_alpha_coefficients(dt, alpha)[0]
+    sec = robot.section()
+    soft = (sec["kbt"][:, :2] + c0 * robot.damping_bending[:, :2]).min(axis=1)
+    return h * (robot.density * sec["area"] * c0**2 / soft) ** 0.25
+
+
+def layer_warning(robot: Robot, grid: np.ndarray, dt: float, alpha: float) -> str | None:
+    """Why undamped motion may gain energy at this grid (1 or B, N+1) [m], dt and alpha (its
+    intervals beyond ``LAYER_LIMITS``, with the nodes that stay inside), or None."""
+    limit = next((lim for a, lim in LAYER_LIMITS if a <= alpha), LAYER_LIMITS[-1][1])
+    ratio = float(np.max(bending_layer_ratio(robot, float(np.diff(grid, axis=1).max()), dt, alpha)))
+    if ratio <= limit:
+        return None
+    need = math.ceil((grid.shape[1] - 1) * ratio / limit)
+    return (f"alpha = {alpha:g} at dt = {dt:g} s: the grid's intervals are {ratio:.2f} of the bending layer l_b, "
+            f"beyond {limit:.2f} where undamped motion was measured to keep its energy (docs/solver.md): "
+            f"steps that gain energy are flagged ENERGY (nodes >= {need} stays inside)")
 
 
 def _check_stepping(dt, alpha) -> None:
@@ -168,6 +198,14 @@ class _Readings:
         R, q = (np.concatenate([getattr(c.sh.nodes, a).numpy().astype(np.float64) for c in self.parts])
                 for a in ("R", "q"))
         return np.einsum("bnij,bnj->bni", R, q)
+
+    def energy(self) -> dict[str, np.ndarray]:
+        """After the last step, per rod (B,) [J]: ``energy`` the mechanical energy H (kinetic, elastic,
+        gravity's and the dead point loads' potentials and, in the coupled model, each tendon's
+        tension times its path length: kernels/energy.py) and ``motion`` its kinetic plus elastic
+        part (frozen rods: their last trial)."""
+        found = np.concatenate([c.monitor.measure() for c in self.parts])
+        return {"energy": found[:, 0], "motion": found[:, 1]}
 
     def shapes(self) -> tuple[np.ndarray, np.ndarray]:
         """Current positions (B, N+1, 3) [m] and rotations (B, N+1, 3, 3) along s (frozen rods:
@@ -416,6 +454,54 @@ class _Recording:
                           rotations=np.array([R for _, R in shapes]) if shapes else np.zeros((0, B, n1, 3, 3)))
 
 
+class _EnergyMonitor:
+    """The energy monitor of a chunk's rods (energy_tolerance > 0): the mechanical energy H of
+    each after a step (kernels/energy.py) against its reference, the last state after which the
+    actuators did work (at rest: the static start). Watched: the rods whose loads are
+    conservative while the command is held: no obstacles, friction, displacement control, held
+    tip or dead tip moment (not conservative in 3D), and in the coupled model kink_loads on (the
+    published model without them is not)."""
+
+    def __init__(self, sim: Simulator, tables: Tables, sh: Shooting, lo: int, hi: int):
+        f, o = tables.features, sim.opts
+        self.sim, self.sh = sim, sh
+        self._energy = Replay(make_energy_kernels(sh.dev.wdtype, f.helix, f.spline).energy, sh.b, sim.dev)
+        self.out = wp.zeros((sh.b, 2), dtype=wp.float64, device=sim.dev)
+        rows = np.broadcast_to(tables.rows("rod", lo, hi), (sh.b, layout.ROD_WIDTH))
+        on = o.energy_tolerance > 0 and not (f.contact or f.friction or f.displaced or f.tip)
+        on = on and (o.kink_loads or o.model != "coupled")
+        self.watched = on & (rows[:, layout.TIP_M:layout.TIP_M + 3] == 0).all(axis=1)
+        self.reference = self.measure() if self.watched.any() else None  # H and T + U_el
+
+    def measure(self) -> np.ndarray:
+        """(b, 2) per rod the mechanical energy H and its kinetic plus elastic part [J] of the
+        last evaluated state."""
+        sh = self.sh
+        self._energy(sh.model, sh.control.tau, sh.nodes.p, sh.step.ycur, sh.n_slots - 2 * sh.n1,
+                     int(self.sim.opts.model == "coupled"), self.out)
+        return sh.host(self.out).get(np.float64)
+
+    def check(self, ok: np.ndarray, status: np.ndarray, tau: np.ndarray, tau_prev: np.ndarray):
+        """After a step: a converged, watched rod whose command is the last step's (in the point
+        model: no tension; the tendons' pull is not conservative there) and whose H rose above its
+        reference by more than energy_tolerance times its kinetic plus elastic energy (the larger
+        of now and at the reference; plus the round-off of H) is flagged ENERGY and fails. Any
+        other converged rod takes its energy as the new reference (a command changed: the
+        actuators did work). Returns ok, status (b,)."""
+        found, ref = self.measure(), self.reference
+        held = self.watched & (tau == tau_prev).all(axis=1)
+        if self.sim.opts.model != "coupled":
+            held &= (tau == 0).all(axis=1)
+        scale = np.maximum(found[:, 1], ref[:, 1])
+        eps = np.finfo(self.sh.dev.ndtype).eps * 100
+        gained = held & ok & (found[:, 0] - ref[:, 0] > self.sim.opts.energy_tolerance * scale
+                              + eps * (np.abs(found[:, 0]) + 2 * scale))
+        ok = ok & ~gained
+        renew = ok & ~held
+        ref[renew] = found[renew]
+        return ok, np.where(gained, status | layout.ENERGY, status)
+
+
 class _Chunk:
     """The rods lo:hi of a Simulator: their shooting problem and, on the device, the BDF-alpha
     history of every slot, the previous solution, the tip kinematics and the step outcome; with
@@ -459,6 +545,7 @@ class _Chunk:
         self.segs, self.count = _chunk_segments(self, static.segments_or_one[lo:hi], static, lo)
         self._end_step(at_rest=True)
         sh.step.c0 = sh.dev.wdtype(sim.coef[0])
+        self.monitor = _EnergyMonitor(sim, tables, sh, lo, hi)
 
     @property
     def split(self) -> np.ndarray:
@@ -518,6 +605,8 @@ class _Chunk:
             found = self.contact.results(tol, sh.status())
             status, pen = found["status"], penetration(found["contact_gap"]).max(axis=1)
         ok = ((status & layout.CONVERGED) != 0) & alive
+        if self.monitor.watched.any():
+            ok, status = self.monitor.check(ok, status, tau, tau_prev)
         sh.host(self.ok).put(ok)
         self._end_step()
         return ok, status, sh.host(sh.newton.iters).get(), sh.host(sh.newton.resnorm).get(np.float64), pen
