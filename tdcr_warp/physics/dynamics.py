@@ -35,10 +35,11 @@ from tdcr_warp.physics.statics import StaticSolution, armed_segments, reference_
 
 __all__ = ["Simulator", "StepResult", "Trajectory", "bdf_alpha_coefficients", "bending_layer_ratio"]
 
-# The largest h / l_b (``bending_layer_ratio``) at which the undamped wire released from a tendon's
-# pull kept its energy for 600 steps, per alpha, descending (experiments/bdf_alpha_energy.py,
-# docs/solver.md); between two alphas the lower one's limit holds, below the last its limit.
-LAYER_LIMITS = ((0.0, 0.0), )
+# (alpha, limit), descending: the largest h / l_b (``bending_layer_ratio``, rounded up in its 4th
+# digit) at which the undamped wire released from a tendon's pull kept its energy over 600 steps at
+# every alpha from there down to the next row's (experiments/bdf_alpha_energy.py, docs/solver.md);
+# below -0.49 the last.
+LAYER_LIMITS = ((-0.3, 1.233), (-0.47, 0.6815), (-0.49, 0.3542))
 
 
 def bdf_alpha_coefficients(dt: float, alpha: float) -> tuple[float, float, float, float]:
@@ -105,7 +106,7 @@ def bending_layer_ratio(robot: Robot, h: float, dt: float, alpha: float) -> np.n
     c0 = bdf_alpha_coefficients(dt, alpha)[0]
     sec = robot.section()
     soft = (sec["kbt"][:, :2] + c0 * robot.damping_bending[:, :2]).min(axis=1)
-    return h * (robot.density * sec["area"] * c0**2 / soft) ** 0.25
+    return h * math.sqrt(c0) * (robot.density * sec["area"] / soft) ** 0.25  # (no c0^2: dt = 1e-300 is valid)
 
 
 def layer_warning(robot: Robot, grid: np.ndarray, dt: float, alpha: float) -> str | None:
@@ -115,10 +116,10 @@ def layer_warning(robot: Robot, grid: np.ndarray, dt: float, alpha: float) -> st
     ratio = float(np.max(bending_layer_ratio(robot, float(np.diff(grid, axis=1).max()), dt, alpha)))
     if ratio <= limit:
         return None
-    need = math.ceil((grid.shape[1] - 1) * ratio / limit)
+    need = f"{math.ceil((grid.shape[1] - 1) * ratio / limit):.3g}"
     return (f"alpha = {alpha:g} at dt = {dt:g} s: the grid's intervals are {ratio:.2f} of the bending layer l_b, "
-            f"beyond {limit:.2f} where undamped motion was measured to keep its energy (docs/solver.md): "
-            f"steps that gain energy are flagged ENERGY (nodes >= {need} stays inside)")
+            f"beyond {limit:g} where undamped motion was measured to keep its energy (docs/solver.md): it may gain "
+            f"energy (the energy monitor flags such steps ENERGY); nodes >= {need} stays inside")
 
 
 def _check_stepping(dt, alpha) -> None:
@@ -221,8 +222,12 @@ class Simulator(_Readings):
     parameters); tensions: (B, K) [N], the static start; dt [s] > 0; alpha in (-0.5, 0]: the
     scheme's own damping of oscillations, largest at 0 (BDF2) and vanishing as alpha -> -0.5
     (the trapezoidal rule); per period at omega dt = 0.5 the amplitude ratio is 0.878 at 0,
-    0.932 at -0.2, 0.991 at -0.45 (tests/test_dynamics.py). options / overrides: solver settings
-    (:class:`StaticOptions`: nodes, integrator, model, precision, tol, max_iter, ...).
+    0.932 at -0.2, 0.991 at -0.45 (tests/test_dynamics.py). Near -0.5 the grid must resolve the
+    step's bending layer (``bending_layer_ratio`` within ``LAYER_LIMITS``, else a warning): the
+    energy monitor (``energy_tolerance``) flags a step of unforced motion that gains mechanical
+    energy (status ENERGY; the rod fails there), and ``energy()`` reads each rod's energy.
+    options / overrides: solver settings (:class:`StaticOptions`: nodes, integrator, model,
+    precision, tol, max_iter, ...).
     initial: a static solution of the same rods (possibly under other tip loads) to start
     from at rest, instead of solving the statics under ``tensions``.
 
@@ -266,6 +271,9 @@ class Simulator(_Readings):
             raise InputError(f"dynamics needs solver model 'coupled' or 'point', got {self.opts.model!r} (the disk "
                              "model is static for now)")
         static, self.tables, x0 = _static_start(robot, tau, displacements, initial, self.opts, self.dev)
+        layer = layer_warning(robot, self.tables.grid, self.dt, self.alpha)
+        if layer:
+            warnings.warn(layer, stacklevel=2)
         self.segments, self.split_all = _segment_count(self, self.opts.segments), self.opts.segments is not None
         self.grid = np.broadcast_to(self.tables.grid, (self.B, self.tables.grid.shape[1]))
         self.path = static.tendon_path_length
@@ -471,6 +479,8 @@ class _EnergyMonitor:
         on = o.energy_tolerance > 0 and not (f.contact or f.friction or f.displaced or f.tip)
         on = on and (o.kink_loads or o.model != "coupled")
         self.watched = on & (rows[:, layout.TIP_M:layout.TIP_M + 3] == 0).all(axis=1)
+        self.point, self.tolerance = o.model != "coupled", o.energy_tolerance
+        self.eps = 100 * np.finfo(sh.dev.ndtype).eps  # the round-off of H
         self.reference = self.measure() if self.watched.any() else None  # H and T + U_el
 
     def measure(self) -> np.ndarray:
@@ -488,18 +498,18 @@ class _EnergyMonitor:
         of now and at the reference; plus the round-off of H) is flagged ENERGY and fails. Any
         other converged rod takes its energy as the new reference (a command changed: the
         actuators did work). Returns ok, status (b,)."""
-        found, ref = self.measure(), self.reference
+        (h, motion), (h_ref, motion_ref) = self.measure().T, self.reference.T
         held = self.watched & (tau == tau_prev).all(axis=1)
-        if self.sim.opts.model != "coupled":
-            held &= (tau == 0).all(axis=1)
-        scale = np.maximum(found[:, 1], ref[:, 1])
-        eps = np.finfo(self.sh.dev.ndtype).eps * 100
-        gained = held & ok & (found[:, 0] - ref[:, 0] > self.sim.opts.energy_tolerance * scale
-                              + eps * (np.abs(found[:, 0]) + 2 * scale))
-        ok = ok & ~gained
+        if self.point:
+            held &= ~tau.any(axis=1)
+        scale = np.maximum(motion, motion_ref)
+        gained = (h - h_ref > self.tolerance * scale + self.eps * (np.abs(h) + 2 * scale)) & held & ok
+        if gained.any():
+            ok = ok & ~gained
+            status = np.where(gained, status | layout.ENERGY, status)
         renew = ok & ~held
-        ref[renew] = found[renew]
-        return ok, np.where(gained, status | layout.ENERGY, status)
+        self.reference[renew, 0], self.reference[renew, 1] = h[renew], motion[renew]
+        return ok, status
 
 
 class _Chunk:
