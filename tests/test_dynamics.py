@@ -230,6 +230,8 @@ def test_bad_dynamic_input():
         tw.Simulator(rob, [[0.0] * 4], dt=0.0)
     with pytest.raises(tw.InputError, match="alpha"):
         tw.Simulator(rob, [[0.0] * 4], dt=0.01, alpha=0.3)
+    with pytest.raises(tw.InputError, match=r"solver energy_tolerance must be a number >= 0 .*, got -0.1"):
+        tw.Simulator(rob, [[0.0] * 4], dt=0.01, energy_tolerance=-0.1)
     with pytest.raises(tw.InputError, match="damping_bending must be >= 0"):
         robot(damping_bending=(-1.0, 0, 0))
     sim = tw.Simulator(rob, [[0.0] * 4], dt=0.01)

@@ -159,7 +159,8 @@ class StaticOptions:
             ("contact_tolerance", positive(self.contact_tolerance), "a positive number"),
             ("contact_steps", integer(self.contact_steps, 0, 100), "an integer in [0, 100]"),
             ("segments", self.segments is None or integer(self.segments, 1), "a positive integer or None"),
-            ("energy_tolerance", positive(self.energy_tolerance) or (positive(self.energy_tolerance + 1)
+            ("energy_tolerance", positive(self.energy_tolerance) or (isinstance(self.energy_tolerance, (int, float))
+                                                                      and not isinstance(self.energy_tolerance, bool)
                                                                       and self.energy_tolerance == 0),
              "a number >= 0 (0: no energy monitor)"),
         ]
