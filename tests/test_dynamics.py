@@ -373,3 +373,17 @@ def test_energy_monitor_passes_the_damped_actuated_seed_run():
         assert r.converged.all() and not (r.status & layout.ENERGY).any(), i
         energy.append(sim.energy()["energy"][0])
     assert np.all(np.diff(energy[5:]) < 1e-9), np.diff(energy[5:]).max()
+
+
+@pytest.mark.parametrize("nodes, dt, alpha, need", [(20, 1e-3, -0.49, 40), (10, 1e-3, -0.45, 21), (5, 1e-3, 0.0, 10),
+                                                    (40, 1e-3, -0.49, None), (20, 1e-3, -0.4, None),
+                                                    (20, 4e-3, -0.49, None), (10, 1e-3, 0.0, None)])
+def test_grid_bound_on_alpha_warns_where_energy_was_gained(nodes, dt, alpha, need):
+    """The warning of LAYER_LIMITS on the wire of experiments/bdf_alpha_energy.py: where its map
+    measured a gain (h / l_b 0.71 at -0.49, 1.39 at -0.45, 2.47 at 0) it warns and names the nodes
+    that stay inside; where every run kept the energy it is silent."""
+    with warnings.catch_warnings(record=True) as record:
+        warnings.simplefilter("always")
+        tw.Simulator(robot(), [[0.0] * 4], dt=dt, alpha=alpha, nodes=nodes)
+    found = [str(w.message) for w in record if "bending layer" in str(w.message)]
+    assert len(found) == (need is not None) and (need is None or found[0].endswith(f"nodes >= {need} stays inside"))
