@@ -66,6 +66,7 @@ PRECISION_LIMITED = 32  # with CONVERGED: stopped at the round-off floor, residu
 UNSETTLED = 64  # displacement control: the taut / slack set of the tendons did not settle
 UNSTABLE = 128  # with CONVERGED: an equilibrium, but an unstable one (tdcr_warp/physics/stability.py)
 PENETRATION = 256  # contact not resolved: a rigid obstacle penetrated beyond tolerance, or the base inside one
+ENERGY = 512  # dynamics, with CONVERGED: the step created mechanical energy beyond energy_tolerance (physics/dynamics.py)
 CROSSED = 1024  # a rigid obstacle crossed on the way to the answer (tdcr_warp/physics/crossing.py)
 
 STATUS_NAMES = {
@@ -79,6 +80,7 @@ STATUS_NAMES = {
     UNSTABLE: "unstable equilibrium",
     PENETRATION: "contact not resolved (a rigid obstacle penetrated beyond contact_tolerance at a node or between two, "
                  "or the base inside an obstacle; raise nodes for obstacles smaller than the node spacing)",
+    ENERGY: "energy gained (free motion created mechanical energy beyond energy_tolerance)",
     CROSSED: "a rigid obstacle crossed on the way to the answer (no load path around it was found)",
 }
 

@@ -22,7 +22,7 @@ def test_every_kernel_option_builds_for_sm90(tmp_path):
     results = compile_all(variants, 90, str(tmp_path), jobs=os.cpu_count() or 1, log=lambda line: None)
     for v, mods in results:
         groups = {group(name) for name, _, _ in mods}
-        assert groups == {"fused", "probes", "evaluate"} | ({"history"} if v.dynamic else set()) | (
+        assert groups == {"fused", "probes", "evaluate"} | ({"history", "energy"} if v.dynamic else set()) | (
             {"contact"} if v.features.contact else set()) | ({"segments", "banded"} if segmented(v) is not None else set()), v
         for name, _, files in mods:
             assert files, f"{v}: {name} built nothing"

@@ -5,7 +5,7 @@ carries NVRTC), to show that every kernel variant builds for a GPU and to ship c
 
 A variant is one (precision, integrator, tendon model, rod model, statics/dynamics, feature
 set); each builds three Warp modules (fused driver, probe driver, evaluation) plus the
-BDF-alpha history module of its precision, the contact outputs' where it has obstacles, and
+BDF-alpha history and energy monitor modules of its precision, the contact outputs' where it has obstacles, and
 where it can be split into segments the segments' module and the banded Newton solve's. Without
 --all a covering set is built: every value of every option at least once, the general kernel
 (all features) and the leanest (none).
@@ -81,6 +81,7 @@ def _modules(v: Variant):
 
     from tdcr_warp.kernels.banded import band_solve
     from tdcr_warp.kernels.contact import make_contact_kernel, make_interval_kernels
+    from tdcr_warp.kernels.energy import make_energy_kernels
     from tdcr_warp.kernels.history import make_history_kernels
     from tdcr_warp.kernels.segments import make_segment_kernel
     from tdcr_warp.kernels.shooting import make_shooting_kernels
@@ -90,6 +91,7 @@ def _modules(v: Variant):
     mods = [k.solve.module, k.probe.module, k.evaluate.module]  # evaluate: dynamics, and the probes of sensitivities
     if v.dynamic:
         mods.append(make_history_kernels(dtype).end_step.module)
+        mods.append(make_energy_kernels(dtype, v.features.helix, v.features.spline).energy.module)
     if v.features.contact:  # the contact outputs (one module for every precision and variant)
         make_interval_kernels(dtype, v.dynamic)  # the same module: built with it
         mods.append(make_contact_kernel(dtype, v.dynamic).module)
@@ -126,7 +128,7 @@ def segmented(v: Variant):
 
 
 def group(module: str) -> str:
-    """A built module's kind: fused, probes, evaluate, history, contact, segments or banded."""
+    """A built module's kind: fused, probes, evaluate, history, energy, contact, segments or banded."""
     return module.split("_")[2] if module.startswith("tdcr_warp_") else module.rsplit(".", 1)[-1]
 
 

@@ -33,6 +33,7 @@ from tdcr_warp.core.build import (
 )
 from tdcr_warp.core.launch import Mirror, Replay
 from tdcr_warp.kernels import layout
+from tdcr_warp.kernels.energy import make_energy_kernels
 from tdcr_warp.kernels.history import make_history_kernels
 from tdcr_warp.kernels.shooting import make_shooting_kernels
 from tdcr_warp.kernels.variants import MODELS
@@ -140,6 +141,8 @@ def load_kernels(robot: Robot, options, device=None, *, dynamic: bool = False) -
         _load_solver_kernels(k, _fused(options.driver, dev), dev)
     if dynamic:
         make_history_kernels(wdtype).end_step.module.load(dev, 1 if dev.is_cpu else 256)
+        f = variants[-1][1]
+        make_energy_kernels(wdtype, f.helix, f.spline).energy.module.load(dev, 1 if dev.is_cpu else 256)
     return time.perf_counter() - t0
 
 

@@ -20,6 +20,7 @@ PRECISIONS = ("float64", "float32")
 COMMANDS = ("tension", "displacement")  # what the tip controller commands: tendon tensions or motor displacements
 DRIVERS = ("fused", "probes")
 STABILITY = ("off", "check", "stable")
+ENERGY_TOLERANCE = 0.01  # the energy monitor's default (experiments/bdf_alpha_energy.py, docs/accuracy.md)
 
 
 def status_names(status: int) -> list[str]:
@@ -96,6 +97,11 @@ class StaticOptions:
     the rods single shooting cannot resolve (statics: a contact left unresolved; dynamics: a step
     that fails where dt is beyond single shooting's reach) into as many segments as they need; M
     solves every rod in M segments (statics: from single shooting's answer); 1: never.
+    energy_tolerance (dynamics): the energy monitor. Where nothing does work on a rod but its
+    conservative loads (gravity, dead point forces, held tensions in the coupled model; damping,
+    drag only take energy away), a step whose mechanical energy rises above its value at the last
+    change of command by more than energy_tolerance times the rod's kinetic plus elastic energy is
+    flagged ENERGY and fails (tdcr_warp/physics/dynamics.py; docs/solver.md); 0: off.
     """
 
     nodes: int = 50
@@ -119,6 +125,7 @@ class StaticOptions:
     contact_tolerance: float = 0.01
     contact_steps: int = 8
     segments: int | None = None
+    energy_tolerance: float = ENERGY_TOLERANCE
 
     def __post_init__(self):
         def integer(v, low, high=10**9):
@@ -152,6 +159,10 @@ class StaticOptions:
             ("contact_tolerance", positive(self.contact_tolerance), "a positive number"),
             ("contact_steps", integer(self.contact_steps, 0, 100), "an integer in [0, 100]"),
             ("segments", self.segments is None or integer(self.segments, 1), "a positive integer or None"),
+            ("energy_tolerance", positive(self.energy_tolerance) or (isinstance(self.energy_tolerance, (int, float))
+                                                                      and not isinstance(self.energy_tolerance, bool)
+                                                                      and self.energy_tolerance == 0),
+             "a number >= 0 (0: no energy monitor)"),
         ]
         for name, ok, what in checks:
             if not ok:

@@ -239,6 +239,9 @@ _TABLES = (
         Key("segments", "integer", "-", "multiple shooting: every rod in this many segments (at most nodes), 1: "
             "never", default=None, default_text="only the rods single shooting cannot resolve, in as many as they "
             "need", checked_by="StaticOptions"),
+        Key("energy_tolerance", "number", "-", "dynamics: flag a step of unforced motion that gains mechanical energy "
+            "beyond this fraction of the rod's kinetic plus elastic energy (0: off)", default=0.01,
+            checked_by="StaticOptions"),
     )),
     Table("dynamics", "Time stepping (`tdcr-warp simulate`, `control`); an empty table is none.", keys=(
         Key("dt", "number", "s", "time step", "", REQUIRED),

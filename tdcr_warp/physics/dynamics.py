@@ -23,6 +23,7 @@ from tdcr_warp.core.parallel import parallel, split
 from tdcr_warp.core.progress import Progress
 from tdcr_warp.core.solver import Shooting
 from tdcr_warp.kernels import layout
+from tdcr_warp.kernels.energy import make_energy_kernels
 from tdcr_warp.kernels.history import make_history_kernels
 from tdcr_warp.kernels.segments import segmentable
 from tdcr_warp.model.options import StaticOptions
@@ -32,7 +33,13 @@ from tdcr_warp.physics.segments import SWITCH_REACH, Segments, segments_needed, 
 from tdcr_warp.physics.slack import available_lengths, settle_slack
 from tdcr_warp.physics.statics import StaticSolution, armed_segments, reference_lengths, solve_static
 
-__all__ = ["Simulator", "StepResult", "Trajectory", "bdf_alpha_coefficients"]
+__all__ = ["Simulator", "StepResult", "Trajectory", "bdf_alpha_coefficients", "bending_layer_ratio"]
+
+# (alpha, limit), descending: the largest h / l_b (``bending_layer_ratio``, rounded up in its 4th
+# digit) at which the undamped wire released from a tendon's pull kept its energy over 600 steps at
+# every alpha from there down to the next row's (experiments/bdf_alpha_energy.py, docs/solver.md);
+# below -0.49 the last.
+LAYER_LIMITS = ((-0.3, 1.233), (-0.47, 0.6815), (-0.49, 0.3542))
 
 
 def bdf_alpha_coefficients(dt: float, alpha: float) -> tuple[float, float, float, float]:
@@ -89,6 +96,30 @@ class Trajectory:
 
     def to_npz(self, path) -> None:
         np.savez_compressed(path, **asdict(self))
+
+
+def bending_layer_ratio(robot: Robot, h: float, dt: float, alpha: float) -> np.ndarray:
+    """(1 or B,) h / l_b: an interval h [m] of the grid over the length l_b = ((EI + c0 Bbt) /
+    (rho A c0^2))^(1/4) [m] over which one step's inertia bends the rod (the boundary layer of its
+    problem in s; the softer bending axis). Beyond a limit that shrinks as alpha -> -0.5
+    (``LAYER_LIMITS``) undamped motion gains energy."""
+    c0 = bdf_alpha_coefficients(dt, alpha)[0]
+    sec = robot.section()
+    soft = (sec["kbt"][:, :2] + c0 * robot.damping_bending[:, :2]).min(axis=1)
+    return h * math.sqrt(c0) * (robot.density * sec["area"] / soft) ** 0.25  # (no c0^2: dt = 1e-300 is valid)
+
+
+def layer_warning(robot: Robot, grid: np.ndarray, dt: float, alpha: float) -> str | None:
+    """Why undamped motion may gain energy at this grid (1 or B, N+1) [m], dt and alpha (its
+    intervals beyond ``LAYER_LIMITS``, with the nodes that stay inside), or None."""
+    limit = next((lim for a, lim in LAYER_LIMITS if a <= alpha), LAYER_LIMITS[-1][1])
+    ratio = float(np.max(bending_layer_ratio(robot, float(np.diff(grid, axis=1).max()), dt, alpha)))
+    if ratio <= limit:
+        return None
+    need = f"{math.ceil((grid.shape[1] - 1) * ratio / limit):.3g}"
+    return (f"alpha = {alpha:g} at dt = {dt:g} s: the grid's intervals are {ratio:.2f} of the bending layer l_b, "
+            f"beyond {limit:g} where undamped motion was measured to keep its energy (docs/solver.md): it may gain "
+            f"energy (the energy monitor flags such steps ENERGY); nodes >= {need} stays inside")
 
 
 def _check_stepping(dt, alpha) -> None:
@@ -169,6 +200,14 @@ class _Readings:
                 for a in ("R", "q"))
         return np.einsum("bnij,bnj->bni", R, q)
 
+    def energy(self) -> dict[str, np.ndarray]:
+        """After the last step, per rod (B,) [J]: ``energy`` the mechanical energy H (kinetic, elastic,
+        gravity's and the dead point loads' potentials and, in the coupled model, each tendon's
+        tension times its path length: kernels/energy.py) and ``motion`` its kinetic plus elastic
+        part (frozen rods: their last trial)."""
+        found = np.concatenate([c.monitor.measure() for c in self.parts])
+        return {"energy": found[:, 0], "motion": found[:, 1]}
+
     def shapes(self) -> tuple[np.ndarray, np.ndarray]:
         """Current positions (B, N+1, 3) [m] and rotations (B, N+1, 3, 3) along s (frozen rods:
         their last trial)."""
@@ -183,8 +222,12 @@ class Simulator(_Readings):
     parameters); tensions: (B, K) [N], the static start; dt [s] > 0; alpha in (-0.5, 0]: the
     scheme's own damping of oscillations, largest at 0 (BDF2) and vanishing as alpha -> -0.5
     (the trapezoidal rule); per period at omega dt = 0.5 the amplitude ratio is 0.878 at 0,
-    0.932 at -0.2, 0.991 at -0.45 (tests/test_dynamics.py). options / overrides: solver settings
-    (:class:`StaticOptions`: nodes, integrator, model, precision, tol, max_iter, ...).
+    0.932 at -0.2, 0.991 at -0.45 (tests/test_dynamics.py). Near -0.5 the grid must resolve the
+    step's bending layer (``bending_layer_ratio`` within ``LAYER_LIMITS``, else a warning): the
+    energy monitor (``energy_tolerance``) flags a step of unforced motion that gains mechanical
+    energy (status ENERGY; the rod fails there), and ``energy()`` reads each rod's energy.
+    options / overrides: solver settings (:class:`StaticOptions`: nodes, integrator, model,
+    precision, tol, max_iter, ...).
     initial: a static solution of the same rods (possibly under other tip loads) to start
     from at rest, instead of solving the statics under ``tensions``.
 
@@ -228,6 +271,9 @@ class Simulator(_Readings):
             raise InputError(f"dynamics needs solver model 'coupled' or 'point', got {self.opts.model!r} (the disk "
                              "model is static for now)")
         static, self.tables, x0 = _static_start(robot, tau, displacements, initial, self.opts, self.dev)
+        layer = layer_warning(robot, self.tables.grid, self.dt, self.alpha)
+        if layer:
+            warnings.warn(layer, stacklevel=2)
         self.segments, self.split_all = _segment_count(self, self.opts.segments), self.opts.segments is not None
         self.grid = np.broadcast_to(self.tables.grid, (self.B, self.tables.grid.shape[1]))
         self.path = static.tendon_path_length
@@ -416,6 +462,56 @@ class _Recording:
                           rotations=np.array([R for _, R in shapes]) if shapes else np.zeros((0, B, n1, 3, 3)))
 
 
+class _EnergyMonitor:
+    """The energy monitor of a chunk's rods (energy_tolerance > 0): the mechanical energy H of
+    each after a step (kernels/energy.py) against its reference, the last state after which the
+    actuators did work (at rest: the static start). Watched: the rods whose loads are
+    conservative while the command is held: no obstacles, friction, displacement control, held
+    tip or dead tip moment (not conservative in 3D), and in the coupled model kink_loads on (the
+    published model without them is not)."""
+
+    def __init__(self, sim: Simulator, tables: Tables, sh: Shooting, lo: int, hi: int):
+        f, o = tables.features, sim.opts
+        self.sim, self.sh = sim, sh
+        self._energy = Replay(make_energy_kernels(sh.dev.wdtype, f.helix, f.spline).energy, sh.b, sim.dev)
+        self.out = wp.zeros((sh.b, 2), dtype=wp.float64, device=sim.dev)
+        rows = np.broadcast_to(tables.rows("rod", lo, hi), (sh.b, layout.ROD_WIDTH))
+        on = o.energy_tolerance > 0 and not (f.contact or f.friction or f.displaced or f.tip)
+        on = on and (o.kink_loads or o.model != "coupled")
+        self.watched = on & (rows[:, layout.TIP_M:layout.TIP_M + 3] == 0).all(axis=1)
+        self.point, self.tolerance = o.model != "coupled", o.energy_tolerance
+        self.eps = 100 * np.finfo(sh.dev.ndtype).eps  # the round-off of H
+        self.reference = self.measure() if self.watched.any() else None  # H and T + U_el
+
+    def measure(self) -> np.ndarray:
+        """(b, 2) per rod the mechanical energy H and its kinetic plus elastic part [J] of the
+        last evaluated state."""
+        sh = self.sh
+        self._energy(sh.model, sh.control.tau, sh.nodes.p, sh.step.ycur, sh.n_slots - 2 * sh.n1,
+                     int(self.sim.opts.model == "coupled"), self.out)
+        return sh.host(self.out).get(np.float64)
+
+    def check(self, ok: np.ndarray, status: np.ndarray, tau: np.ndarray, tau_prev: np.ndarray):
+        """After a step: a converged, watched rod whose command is the last step's (in the point
+        model: no tension; the tendons' pull is not conservative there) and whose H rose above its
+        reference by more than energy_tolerance times its kinetic plus elastic energy (the larger
+        of now and at the reference; plus the round-off of H) is flagged ENERGY and fails. Any
+        other converged rod takes its energy as the new reference (a command changed: the
+        actuators did work). Returns ok, status (b,)."""
+        (h, motion), (h_ref, motion_ref) = self.measure().T, self.reference.T
+        held = self.watched & (tau == tau_prev).all(axis=1)
+        if self.point:
+            held &= ~tau.any(axis=1)
+        scale = np.maximum(motion, motion_ref)
+        gained = (h - h_ref > self.tolerance * scale + self.eps * (np.abs(h) + 2 * scale)) & held & ok
+        if gained.any():
+            ok = ok & ~gained
+            status = np.where(gained, status | layout.ENERGY, status)
+        renew = ok & ~held
+        self.reference[renew, 0], self.reference[renew, 1] = h[renew], motion[renew]
+        return ok, status
+
+
 class _Chunk:
     """The rods lo:hi of a Simulator: their shooting problem and, on the device, the BDF-alpha
     history of every slot, the previous solution, the tip kinematics and the step outcome; with
@@ -459,6 +555,7 @@ class _Chunk:
         self.segs, self.count = _chunk_segments(self, static.segments_or_one[lo:hi], static, lo)
         self._end_step(at_rest=True)
         sh.step.c0 = sh.dev.wdtype(sim.coef[0])
+        self.monitor = _EnergyMonitor(sim, tables, sh, lo, hi)
 
     @property
     def split(self) -> np.ndarray:
@@ -519,6 +616,8 @@ class _Chunk:
             status = found["status"]
             pen = np.maximum(penetration(found["contact_gap"]), penetration(found["interval_gap"])).max(axis=1)
         ok = ((status & layout.CONVERGED) != 0) & alive
+        if self.monitor.watched.any():
+            ok, status = self.monitor.check(ok, status, tau, tau_prev)
         sh.host(self.ok).put(ok)
         self._end_step()
         return ok, status, sh.host(sh.newton.iters).get(), sh.host(sh.newton.resnorm).get(np.float64), pen
