@@ -263,8 +263,8 @@ def predict_recorded(scene: Scene, meas: Measurements, device=None, progress=Non
 def predict_in_chunks(scene: Scene, meas: Measurements, device=None, chunk: int = PREDICT_CHUNK, progress=None,
                       **overrides) -> dict:
     """``predict`` on consecutive chunks of ``chunk`` rows, keeping of each only the per-row
-    results: the memory is one chunk's solve plus ~0.2 kB a row of results and measurements, however
-    many rows. A row that does not converge is retried from the row before it as in ``predict``,
+    results: the memory is one chunk's solve plus the measurements and results (~0.2 kB a row),
+    however many rows. A row that does not converge is retried from the row before it as in ``predict``,
     across a chunk's start too (that row's solution is carried over), so the rows are the one
     batch's (but for a chain of more than RETRY_ROUNDS failed rows across a chunk's start).
     ``progress(done, failed)`` after every chunk (rows). Returns what ``predict`` does but
@@ -443,9 +443,11 @@ def fit(data: dict, meas: Measurements, *, detail: str = "tendon", max_iter: int
     Jacobian comes with each batched solve (``_fit_jacobian``: implicit-function theorem, no solve
     repeated), and each trial solve starts warm from the last accepted one. From the grid's start
     it runs first on every COARSE_EVERY-th row, then on all rows from there. Rows that do not
-    converge are left out of that evaluation. Returns the fitted scene dict, the parameters with
-    their standard deviations (sigma^2 (J^T J)^-1 at the fitted parameters, sigma^2 the residual
-    variance per coordinate), the training metrics, iterations and time."""
+    converge are left out of that evaluation. Fewer coordinates (3 a row) than parameters + 1, or
+    more than MAX_FIT_ROWS rows, are an InputError. Returns the fitted scene dict, the parameters
+    with their standard deviations (sigma^2 (J^T J)^-1 at the fitted parameters, sigma^2 the
+    residual variance per coordinate; ``_standard_deviations``), the names of those the data cannot
+    determine (``unidentifiable``: their std NaN), the training metrics, iterations and time."""
     t0 = time.perf_counter()
     spec = _parameter_spec(data, detail)
     if 3 * len(meas) <= len(spec):
