@@ -498,18 +498,18 @@ def fit(data: dict, meas: Measurements, *, detail: str = "tendon", max_iter: int
 
 def unidentifiable(J: np.ndarray) -> np.ndarray:
     """(P,) bool: the parameters the data cannot determine, from the Jacobian J (rows, P) of the
-    residual: its columns scaled to unit length (a zero column: flagged), the right singular
-    vectors whose singular value is below RANK_RTOL times the largest (and all beyond the row
-    count) span the directions the data do not see; a parameter is flagged when more than
-    NULL_SHARE of its unit vector lies in that span."""
+    residual: its columns scaled to unit length (a zero column: flagged), the directions the data
+    see are the right singular vectors whose singular value is at least RANK_RTOL times the
+    largest (at most one per row); a parameter is flagged when more than NULL_SHARE of its unit
+    vector lies outside them (in the null space). Memory: J's size (the thin SVD)."""
     norm = np.linalg.norm(J, axis=0)
     lost = ~(norm > 0)
     live = np.flatnonzero(~lost)
     if not len(live):
         return lost
-    _, sv, vt = np.linalg.svd(J[:, live] / norm[live], full_matrices=True)
-    null = vt[np.r_[sv < RANK_RTOL * sv[0], np.ones(len(live) - len(sv), dtype=bool)]]
-    lost[live] = np.linalg.norm(null, axis=0) > NULL_SHARE
+    _, sv, vt = np.linalg.svd(J[:, live] / norm[live], full_matrices=False)
+    seen = vt[sv >= RANK_RTOL * sv[0]]
+    lost[live] = np.sqrt(np.clip(1.0 - (seen ** 2).sum(axis=0), 0.0, None)) > NULL_SHARE
     return lost
 
 
