@@ -45,7 +45,7 @@ MAX_TIP_MM = 1e4  # a measured point beyond 10 m of the mocap origin is a corrup
 TIP_COLUMNS = ("tip_x", "tip_y", "tip_z")
 RANK_RTOL = 1e-6  # a direction of the fit's scaled Jacobian this much weaker than the strongest: not identified
 NULL_SHARE = 0.1  # a parameter with more of its unit vector than this in those directions: flagged by name
-MAX_FIT_ROWS = 50_000  # the fit holds every row's solution, Jacobian and warm start (~9 kB each at 15 nodes)
+MAX_FIT_ROWS = 50_000  # the fit holds every row's solutions at once: ~76 kB a row at 15 nodes (v4), ~4 GB here
 
 
 @dataclass(frozen=True)
