@@ -183,6 +183,12 @@ def test_metrics_remove_the_mean_offset_for_the_aligned_rmse():
     (HEADER + "\n0,a,1e9," + ",".join(["0"] * 5) + ",1,2,3\n", "row 2, column servo_0_mm: 1000000000.0 mm is beyond"),
     (HEADER + "\n0,a," + ",".join(["0"] * 6) + ",1,two,3\n", "row 2, column tip_y: not a number: 'two'"),
     (HEADER + "\n", "no keypoint rows"),
+    (HEADER + "\n0,a," + ",".join(["0"] * 6) + ",1,1e308,3\n", "row 2, column tip_y: 1e+308 mm is beyond +-10000 mm"),
+    (HEADER + "\n0,a," + ",".join(["0"] * 6) + ",1,2,3\n1,a," + ",".join(["0"] * 6) + ",1,2,-2e4\n",
+     "row 3, column tip_z: -20000.0 mm is beyond"),
+    (HEADER + ",tip_y\n0,a," + ",".join(["0"] * 6) + ",1,2,3,4\n", "column(s) ['tip_y'] appear more than once"),
+    ("timestamp,pattern_label,servo_0_mm," + HEADER.split(",", 2)[2] + "\n0,a,0," + ",".join(["0"] * 6) + ",1,2,3\n",
+     "column(s) ['servo_0_mm'] appear more than once"),
     (b"\x89PNG\r\n\x1a\n\x00\x00", "not a UTF-8 text file (byte 0x89 at offset 0)"),
     ((HEADER + "\n0,caf\xe9," + ",".join(["0"] * 6) + ",1,2,3\n").encode("latin-1"), "not a UTF-8 text file"),
     (HEADER.encode() + b"\n0,a\x00b," + b",".join([b"0"] * 6) + b",1,2,3\n", "not a text file (NUL byte at offset"),
@@ -232,3 +238,116 @@ def test_fit_cli_writes_a_scene_that_predict_reads(tmp_path):
     assert main(["predict", str(out / "fitted.toml"), str(csv), "--out", str(tmp_path / "p")]) == 0
     m = json.loads((tmp_path / "p" / "metrics.json").read_text())
     assert m["rmse_mm"] == pytest.approx(rep["training"]["rmse_mm"], rel=1e-6)
+
+
+def test_unidentifiable_names_the_parameters_spanning_the_null_space():
+    """The scaled Jacobian's null space, by name: a column of zeros (a parameter with no effect),
+    two columns only their sum of which the data see (one proportional to the other), fewer rows
+    than columns; a well-posed Jacobian flags none, whatever its columns' scales."""
+    from tdcr_warp.apps.hardware import unidentifiable
+    rng = np.random.default_rng(0)
+    J = rng.normal(size=(30, 5)) * np.array([1e-6, 1.0, 1e3, 1.0, 1.0])
+    assert not unidentifiable(J).any()
+    dead = J.copy()
+    dead[:, 1] = 0.0
+    assert unidentifiable(dead).tolist() == [False, True, False, False, False]
+    pair = J.copy()
+    pair[:, 4] = -2.5 * pair[:, 3] * (1 + 1e-9 * rng.normal(size=30))  # beyond RANK_RTOL: still the pair
+    assert unidentifiable(pair).tolist() == [False, False, False, True, True]
+    assert unidentifiable(J[:3]).sum() >= 2  # 3 rows, 5 parameters: at least a 2-dimensional null space
+
+
+def test_fit_refuses_fewer_coordinates_than_parameters(tmp_path, capsys):
+    """3 coordinates a row: detail "tendon" has 13 parameters here (needs 5 rows), "segment" 8
+    (needs 3): fewer is refused naming the counts (exit 2, nothing written), never fitted with "+- 0"."""
+    import tomli_w
+    csv = tmp_path / "few.csv"
+    synthetic_csv(csv, rows=4)
+    scene = tmp_path / "s.toml"
+    scene.write_text(tomli_w.dumps(scene_dict()))
+    out = tmp_path / "fit"
+    assert main(["fit", str(scene), str(csv), "--out", str(out), "--quiet"]) == 2
+    assert "fit: 4 rows (12 coordinates) cannot determine the 13 parameters of detail 'tendon'" in capsys.readouterr().err
+    assert not (out / "fit.json").exists()
+    with pytest.raises(tw.InputError, match="2 rows .6 coordinates. cannot determine the 8 parameters.*at least 3 rows"):
+        fit(scene_dict(), read_measurements(csv, COLS).subset(np.arange(2)), detail="segment")
+
+
+def test_fit_refuses_more_rows_than_it_holds(tmp_path, monkeypatch):
+    """The fit holds every row's solution at once: beyond MAX_FIT_ROWS it refuses up front, naming
+    the count and the limit (here lowered to 10 on 12 rows), before any solve."""
+    from tdcr_warp.apps import hardware as hw
+    csv = tmp_path / "rows.csv"
+    synthetic_csv(csv, rows=12)
+    monkeypatch.setattr(hw, "MAX_FIT_ROWS", 10)
+    monkeypatch.setattr(hw, "solve_static", None)  # refused before any solve
+    with pytest.raises(tw.InputError, match="fit: 12 rows, more than the 10 it holds in memory at once"):
+        fit(scene_dict(), read_measurements(csv, COLS))
+
+
+def test_fit_flags_a_parameter_without_effect_by_name(tmp_path, capsys):
+    """A tendon on the backbone's axis (offset 0): rotating it changes nothing, so the data cannot
+    determine its angle. The fit says so by name (fit.json ``unidentifiable``, its std null, the
+    printed line) and exits 1; the other parameters keep finite uncertainties."""
+    import tomli_w
+    d = scene_dict(angle=(0.0, 0.0), base=(0.0, 0.0, 0.0))
+    d["tendons"][0]["offset"] = [0.0, 0.0]
+    csv = tmp_path / "synthetic.csv"
+    synthetic_csv(csv, rows=20)
+    scene = tmp_path / "axis.toml"
+    scene.write_text(tomli_w.dumps(d))
+    out = tmp_path / "fit"
+    assert main(["fit", str(scene), str(csv), "--out", str(out), "--max-iter", "2"]) == 1
+    printed = capsys.readouterr().out
+    rep = json.loads((out / "fit.json").read_text())
+    assert rep["unidentifiable"] == ["angle[0]"] and rep["parameters"]["angle[0]"]["std"] is None
+    assert all(v["std"] is not None and v["std"] > 0 for n, v in rep["parameters"].items() if n != "angle[0]")
+    assert "angle[0]" in printed.split("NOT IDENTIFIABLE")[0].splitlines()[-1] and "+- 0 " not in printed
+    assert "cannot determine angle[0]" in printed and (out / "fitted.toml").exists()
+
+
+def test_predict_without_a_converged_row_writes_the_metrics_and_fails(tmp_path, capsys):
+    """No row converges (a solver allowed one Newton iteration): metrics.json still says so
+    (converged 0, the RMSE null), predictions.csv has every row, no figure is drawn, exit 1."""
+    import tomli_w
+    d = scene_dict()
+    d["solver"]["max_iter"] = 1
+    csv = tmp_path / "synthetic.csv"
+    synthetic_csv(csv, rows=8)
+    scene = tmp_path / "s.toml"
+    scene.write_text(tomli_w.dumps(d))
+    out = tmp_path / "p"
+    out.mkdir()
+    (out / "predict.png").write_bytes(b"an earlier run's")  # not left to pass for this run's
+    assert main(["predict", str(scene), str(csv), "--out", str(out), "--quiet"]) == 1
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["rows"] == 8 and m["converged"] == 0 and m["rmse_mm"] is None
+    assert len((out / "predictions.csv").read_text().splitlines()) == 9 and not (out / "predict.png").exists()
+    assert "no predict.png: no row converged" in capsys.readouterr().out
+
+
+def test_predict_in_chunks_is_predict_row_for_row():
+    """Chunks of 5 rows (3 solves, the last short) give the one batch's results row for row, with
+    the progress after each chunk. A row that fails is retried from the row before it across a
+    chunk's start too (a solver held to 3 Newton iterations on a ramp of one tendon: row 4, the
+    first of the second chunk of 4, is retried from row 3 as in the one batch)."""
+    from tdcr_warp.apps import hardware as hw
+    rng = np.random.default_rng(1)
+    meas = read_measurements_from(rng.uniform(-0.5, 1.0, (12, 6)), np.zeros((12, 3)))
+    scene = scene_from_dict(scene_dict())
+    whole, seen = predict(scene, meas), []
+    parts = hw.predict_in_chunks(scene, meas, chunk=5, progress=lambda done, failed: seen.append((done, failed)))
+    assert "solution" not in parts and seen == [(5, 0), (10, 0), (12, 0)] and whole["converged"].all()
+    for k in ("point_mm", "error_mm", "converged", "unstable", "slack", "retried"):
+        np.testing.assert_allclose(parts[k], whole[k], rtol=0, atol=1e-12, err_msg=k)
+    q = np.zeros((12, 6))
+    q[:, 0] = np.linspace(0.0, 1.5, 12)
+    ramp, d = read_measurements_from(q, np.zeros((12, 3))), scene_dict()
+    d["solver"]["max_iter"] = 3
+    held = scene_from_dict(d)
+    whole, seen = predict(held, ramp), []
+    parts = hw.predict_in_chunks(held, ramp, chunk=4, progress=lambda done, failed: seen.append((done, failed)))
+    assert whole["retried"][4] and not whole["converged"].all()
+    assert seen[-1] == (12, int((~whole["converged"]).sum()))
+    for k in ("point_mm", "converged", "retried"):
+        np.testing.assert_array_equal(parts[k], whole[k], err_msg=k)

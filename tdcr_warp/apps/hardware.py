@@ -19,8 +19,10 @@ from __future__ import annotations
 
 import copy
 import csv
+import io
 import math
 import time
+from array import array
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -30,8 +32,8 @@ from tdcr_warp.io.scene import Scene, scene_from_dict
 from tdcr_warp.model.robot import InputError
 from tdcr_warp.physics.statics import StaticSolution, reference_lengths, solve_static
 
-__all__ = ["FIT_PARAMETERS", "Measurements", "fit", "metrics", "pattern_folds", "predict", "predict_recorded",
-           "read_measurements"]
+__all__ = ["FIT_PARAMETERS", "Measurements", "fit", "metrics", "pattern_folds", "predict", "predict_in_chunks",
+           "predict_recorded", "read_measurements", "unidentifiable"]
 
 GRID_ANGLES, GRID_ROWS = 12, 120  # the fit's start: a whole-robot rotation tried every 30 degrees on ~120 rows
 FIT_RTOL = 3e-5  # Levenberg-Marquardt stops when an accepted step lowers the cost by less than this
@@ -39,7 +41,11 @@ LM_LAMBDA0 = 1.0  # its first damping (times the diagonal of J^T J): the nominal
 REFERENCE_TOL = 1e-12  # the reference solves of the fit's Jacobian: their lengths differ by ~1e-7 m a step
 COARSE_EVERY, COARSE_RTOL = 8, 1e-2  # the fit's first phase: every 8th row, until the cost falls by < 1%
 MAX_SERVO_MM = 100.0  # a displacement beyond this is not a tendon's (the rods are ~0.2 m long)
+MAX_TIP_MM = 1e4  # a measured point beyond 10 m of the mocap origin is a corrupt cell, not a tip
 TIP_COLUMNS = ("tip_x", "tip_y", "tip_z")
+RANK_RTOL = 1e-6  # a direction of the fit's scaled Jacobian this much weaker than the strongest: not identified
+NULL_SHARE = 0.1  # a parameter with more of its unit vector than this in those directions: flagged by name
+MAX_FIT_ROWS = 50_000  # the fit holds every row's solutions at once: ~76 kB a row at 15 nodes (v4), ~4 GB here
 
 
 @dataclass(frozen=True)
@@ -60,56 +66,79 @@ class Measurements:
 
 
 def read_measurements(paths, servo_columns: list[str]) -> Measurements:
-    """Read keypoint CSVs; an InputError names the file, row and column of anything missing,
-    non-numeric, non-finite or out of range (|servo| > MAX_SERVO_MM), and an empty file."""
-    labels, servo, tips, source = [], [], [], []
+    """Read keypoint CSVs row by row (no list of every cell is held); an InputError names the file,
+    and the row and column of anything missing, non-numeric, non-finite or out of range (|servo| >
+    MAX_SERVO_MM, |tip| > MAX_TIP_MM), a duplicated column name and an empty file."""
+    labels, source = [], []
+    servo, tips = array("d"), array("d")
     for path in [paths] if isinstance(paths, (str, Path)) else paths:
-        path = Path(path)
+        path, before = Path(path), len(labels)
+        name = str(path)
+        rows = csv.reader(io.StringIO(_read_text(path), newline=""))
         try:
-            text = path.read_text(encoding="utf-8")
-            if "\x00" in text:
-                raise InputError(f"{path}: not a text file (NUL byte at offset {text.index(chr(0))}); "
-                                 "expected a CSV of keypoints")
-            rows = list(csv.reader(text.splitlines()))
-        except OSError as e:
-            raise InputError(f"{path}: cannot read it: {e.strerror or e}") from None
-        except UnicodeDecodeError as e:
-            raise InputError(f"{path}: not a UTF-8 text file (byte 0x{e.object[e.start]:02x} at offset {e.start}); "
-                             "expected a CSV of keypoints") from None
+            header = [h.strip() for h in next(rows, [])]
+            need = ["pattern_label", *servo_columns, *TIP_COLUMNS]
+            idx = _column_index(path, header, need)
+            for n, r in enumerate(rows, start=2):
+                if not any(cell.strip() for cell in r):
+                    continue
+                if len(r) < len(header):
+                    raise InputError(f"{path}, row {n}: {len(r)} cells, the header has {len(header)}")
+                labels.append(r[idx[0]].strip())
+                source.append(name)
+                vals = [_cell(path, n, c, r[i]) for c, i in zip(need[1:], idx[1:])]
+                servo.extend(vals[:len(servo_columns)])
+                tips.extend(vals[len(servo_columns):])
         except csv.Error as e:
             raise InputError(f"{path}: not a CSV ({e})") from None
-        if not rows or not any(rows):
-            raise InputError(f"{path}: empty file (expected a header and keypoint rows)")
-        header = [h.strip() for h in rows[0]]
-        need = ["pattern_label", *servo_columns, *TIP_COLUMNS]
-        missing = [c for c in need if c not in header]
-        if missing:
-            raise InputError(f"{path}: missing column(s) {missing} (the header has {header})")
-        idx = [header.index(c) for c in need]
-        body = [r for r in rows[1:] if any(cell.strip() for cell in r)]
-        if not body:
+        if len(labels) == before:
             raise InputError(f"{path}: no keypoint rows after the header")
-        for n, r in enumerate(body, start=2):
-            if len(r) < len(header):
-                raise InputError(f"{path}, row {n}: {len(r)} cells, the header has {len(header)}")
-            vals = []
-            for c, i in zip(need[1:], idx[1:]):
-                cell = r[i].strip()
-                try:
-                    v = float(cell)
-                except ValueError:
-                    raise InputError(f"{path}, row {n}, column {c}: not a number: {cell!r}") from None
-                if not math.isfinite(v):
-                    raise InputError(f"{path}, row {n}, column {c}: not finite: {cell!r}")
-                if c in servo_columns and abs(v) > MAX_SERVO_MM:
-                    raise InputError(f"{path}, row {n}, column {c}: {v!r} mm is beyond +-{MAX_SERVO_MM:g} mm")
-                vals.append(v)
-            labels.append(r[idx[0]].strip())
-            servo.append(vals[:len(servo_columns)])
-            tips.append(vals[len(servo_columns):])
-            source.append(str(path))
-    return Measurements(np.array(labels), np.array(servo, dtype=np.float64), np.array(tips, dtype=np.float64),
-                        np.array(source))
+    return Measurements(np.array(labels), np.frombuffer(servo).reshape(len(labels), len(servo_columns)),
+                        np.frombuffer(tips).reshape(len(labels), 3), np.array(source, dtype=object))
+
+
+def _read_text(path: Path) -> str:
+    """The text of a keypoint CSV; an InputError if it cannot be read, is not UTF-8, has a NUL byte."""
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as e:
+        raise InputError(f"{path}: cannot read it: {e.strerror or e}") from None
+    except UnicodeDecodeError as e:
+        raise InputError(f"{path}: not a UTF-8 text file (byte 0x{e.object[e.start]:02x} at offset {e.start}); "
+                         "expected a CSV of keypoints") from None
+    if "\x00" in text:
+        raise InputError(f"{path}: not a text file (NUL byte at offset {text.index(chr(0))}); "
+                         "expected a CSV of keypoints")
+    if not text.strip():
+        raise InputError(f"{path}: empty file (expected a header and keypoint rows)")
+    return text
+
+
+def _column_index(path: Path, header: list[str], need: list[str]) -> list[int]:
+    """The position of every needed column in the header; an InputError names a missing or a
+    duplicated one (which copy would be meant is unknowable)."""
+    twice = sorted({h for h in header if h and header.count(h) > 1})
+    if twice:
+        raise InputError(f"{path}: column(s) {twice} appear more than once in the header")
+    missing = [c for c in need if c not in header]
+    if missing:
+        raise InputError(f"{path}: missing column(s) {missing} (the header has {header})")
+    return [header.index(c) for c in need]
+
+
+def _cell(path: Path, row: int, column: str, text: str) -> float:
+    """One numeric cell [mm]: a finite number within MAX_SERVO_MM (servo columns) or MAX_TIP_MM (tips)."""
+    cell = text.strip()
+    try:
+        v = float(cell)
+    except ValueError:
+        raise InputError(f"{path}, row {row}, column {column}: not a number: {cell!r}") from None
+    if not math.isfinite(v):
+        raise InputError(f"{path}, row {row}, column {column}: not finite: {cell!r}")
+    limit = MAX_TIP_MM if column in TIP_COLUMNS else MAX_SERVO_MM
+    if abs(v) > limit:
+        raise InputError(f"{path}, row {row}, column {column}: {v!r} mm is beyond +-{limit:g} mm")
+    return v
 
 
 def pattern_folds(labels: np.ndarray, k: int) -> np.ndarray:
@@ -141,14 +170,16 @@ def _hardware(scene: Scene) -> dict:
 
 RETRY_ROUNDS = 4
 PROGRESS_ROWS = 200
+PREDICT_CHUNK = 2048  # rows a batched solve of predict_in_chunks (its solution: ~6 kB a row at 15 nodes)
 
 
-def predict(scene: Scene, meas: Measurements, device=None, initial=None, **overrides) -> dict:
+def predict(scene: Scene, meas: Measurements, device=None, initial=None, before=None, **overrides) -> dict:
     """One batched solve of every row, then (up to RETRY_ROUNDS batched solves of the rows that
     did not converge) each such row again from the solution of the row before it in the same
-    file, the way the robot was recorded: every keypoint settled from the last; with a warm start
-    (``initial``: a solution of as many rows), what is still unconverged once more from the
-    straight rod. Returns
+    file, the way the robot was recorded: every keypoint settled from the last (``before``: the
+    one-row solution of the row before the first, in the same file, e.g. the last of the previous
+    chunk); with a warm start (``initial``: a solution of as many rows), what is still unconverged
+    once more from the straight rod. Returns
     ``point_mm`` (M, 3) the predicted measured point, ``error_mm`` (M, 3) predicted less
     measured, ``converged`` (M,), ``unstable`` (M,) bool (converged to an equilibrium the stability
     verdict found unstable: not a trustworthy prediction), ``slack`` (M, K), ``retried`` (M,) bool, the
@@ -162,13 +193,16 @@ def predict(scene: Scene, meas: Measurements, device=None, initial=None, **overr
     retried = np.zeros(len(meas), dtype=bool)
     prev = np.r_[-1, np.arange(len(meas) - 1)]
     prev[1:][meas.source[1:] != meas.source[:-1]] = -1
+    if before is not None:
+        prev[0] = len(meas)  # ``before``, appended to the rows a retry can start from
     for _ in range(RETRY_ROUNDS):
+        known = sol if before is None else StaticSolution.joined([sol, before])
         rows = np.flatnonzero(~sol.converged & (prev >= 0))
-        rows = rows[sol.converged[prev[rows]]]
+        rows = rows[known.converged[prev[rows]]]
         if not len(rows):
             break
         part = solve_static(scene.robot, tau[rows], displacements=q[rows], options=scene.options, device=device,
-                            initial=sol.rows(prev[rows]), **overrides)
+                            initial=known.rows(prev[rows]), **overrides)
         retried[rows] = True
         if not part.converged.any():
             break
@@ -197,13 +231,14 @@ def predict_recorded(scene: Scene, meas: Measurements, device=None, progress=Non
     each motor's motion since the last row, so a pull and a release to the same displacement can
     end in different shapes (hysteresis). A row whose step does not converge is solved again without
     the memory (``retried``), and the next row starts from it. Without friction the rows are what
-    ``predict`` gives (to Newton's tolerance), at one solve per row. ``progress(i, M)`` every
-    PROGRESS_ROWS rows. Returns what ``predict`` does."""
+    ``predict`` gives (to Newton's tolerance), at one solve per row. ``progress(done, failed)`` (rows)
+    every PROGRESS_ROWS rows; of each block of PROGRESS_ROWS only the per-row results are kept (bounded
+    memory). Returns what ``predict_in_chunks`` does."""
     hw = _hardware(scene)
     t0 = time.perf_counter()
     q = meas.servo_mm * 1e-3
     tau = np.zeros((1, scene.robot.n_tendons))
-    sols, retried, prev = [], np.zeros(len(meas), dtype=bool), None
+    sols, parts, retried, prev, failed = [], [], np.zeros(len(meas), dtype=bool), None, 0
     for i in range(len(meas)):
         if i and meas.source[i] != meas.source[i - 1]:
             prev = None
@@ -214,10 +249,43 @@ def predict_recorded(scene: Scene, meas: Measurements, device=None, progress=Non
             sol = solve_static(scene.robot, tau, displacements=q[i:i + 1], options=scene.options, device=device,
                                **overrides)
         prev = sol if sol.converged[0] else None
+        failed += int(not sol.converged[0])
         sols.append(sol)
-        if progress and (i + 1) % PROGRESS_ROWS == 0:
-            progress(i + 1, len(meas))
-    return _predicted(hw, meas, StaticSolution.joined(sols), retried, time.perf_counter() - t0)
+        if len(sols) == PROGRESS_ROWS or i == len(meas) - 1:
+            rows = np.arange(i + 1 - len(sols), i + 1)
+            parts.append(_predicted(hw, meas.subset(rows), StaticSolution.joined(sols), retried[rows], 0.0))
+            sols = []
+            if progress:
+                progress(i + 1, failed)
+    return _joined(parts, time.perf_counter() - t0)
+
+
+def predict_in_chunks(scene: Scene, meas: Measurements, device=None, chunk: int = PREDICT_CHUNK, progress=None,
+                      **overrides) -> dict:
+    """``predict`` on consecutive chunks of ``chunk`` rows, keeping of each only the per-row
+    results: the memory is one chunk's solve plus the measurements and results (~0.2 kB a row),
+    however many rows. A row that does not converge is retried from the row before it as in ``predict``,
+    across a chunk's start too (that row's solution is carried over), so the rows are the one
+    batch's (but for a chain of more than RETRY_ROUNDS failed rows across a chunk's start).
+    ``progress(done, failed)`` after every chunk (rows). Returns what ``predict`` does but
+    ``solution``."""
+    parts, failed, last = [], 0, None
+    for a in range(0, len(meas), chunk):
+        before = last if a and meas.source[a] == meas.source[a - 1] else None
+        part = predict(scene, meas.subset(np.arange(a, min(a + chunk, len(meas)))), device=device, before=before,
+                       **overrides)
+        last = part.pop("solution").rows([-1])
+        parts.append(part)
+        failed += int((~part["converged"]).sum())
+        if progress:
+            progress(min(a + chunk, len(meas)), failed)
+    return _joined(parts, sum(p["wall_s"] for p in parts))
+
+
+def _joined(parts: list[dict], wall: float) -> dict:
+    """The per-row results of consecutive parts (``_predicted``, their ``solution`` dropped) as one."""
+    rows = ("point_mm", "error_mm", "converged", "unstable", "slack", "retried")
+    return {k: None if parts[0][k] is None else np.concatenate([p[k] for p in parts]) for k in rows} | {"wall_s": wall}
 
 
 def metrics(error_mm: np.ndarray, converged: np.ndarray, length_m: float) -> dict:
@@ -375,11 +443,20 @@ def fit(data: dict, meas: Measurements, *, detail: str = "tendon", max_iter: int
     Jacobian comes with each batched solve (``_fit_jacobian``: implicit-function theorem, no solve
     repeated), and each trial solve starts warm from the last accepted one. From the grid's start
     it runs first on every COARSE_EVERY-th row, then on all rows from there. Rows that do not
-    converge are left out of that evaluation. Returns the fitted scene dict, the parameters with
-    their standard deviations (sigma^2 (J^T J)^-1 at the fitted parameters, sigma^2 the residual
-    variance per coordinate), the training metrics, iterations and time."""
+    converge are left out of that evaluation. Fewer coordinates (3 a row) than parameters + 1, or
+    more than MAX_FIT_ROWS rows, are an InputError. Returns the fitted scene dict, the parameters
+    with their standard deviations (sigma^2 (J^T J)^-1 at the fitted parameters, sigma^2 the
+    residual variance per coordinate; ``_standard_deviations``), the names of those the data cannot
+    determine (``unidentifiable``: their std NaN), the training metrics, iterations and time."""
     t0 = time.perf_counter()
     spec = _parameter_spec(data, detail)
+    if 3 * len(meas) <= len(spec):
+        raise InputError(f"fit: {len(meas)} rows ({3 * len(meas)} coordinates) cannot determine the {len(spec)} "
+                         f"parameters of detail {detail!r} and their uncertainty; need at least "
+                         f"{len(spec) // 3 + 1} rows")
+    if len(meas) > MAX_FIT_ROWS:
+        raise InputError(f"fit: {len(meas)} rows, more than the {MAX_FIT_ROWS} it holds in memory at once (every "
+                         "row's solution, trial and Jacobian); fit on a subset (e.g. every n-th row)")
     names = [sp["name"] for sp in spec]
     p = np.array([sp["value"] for sp in spec])
     lo, hi = (np.array([sp[k] for sp in spec]) for k in ("lo", "hi"))
@@ -408,17 +485,45 @@ def fit(data: dict, meas: Measurements, *, detail: str = "tendon", max_iter: int
                                          COARSE_RTOL if part is not meas else FIT_RTOL)
         its += n
     J, r = cur["jacobian"], cur["error_mm"][cur["rows"]].ravel() * 1e-3
-    sigma2 = float(r @ r) / max(len(r) - len(p), 1)
-    try:
-        std = np.sqrt(np.clip(np.diag(sigma2 * np.linalg.inv(J.T @ J)), 0, None))
-    except np.linalg.LinAlgError:
-        std = np.full(len(p), np.nan)
+    lost = unidentifiable(J)
+    std = _standard_deviations(J, r, lost)
     fitted = _apply(base_data, spec, p)
     L = fitted["robot"]["length"]
     report = {"parameters": {n: {"value": _natural(n, v), "std": _natural_std(n, v, s)} for n, v, s in zip(names, p, std)},
+              "unidentifiable": [n for n, x in zip(names, lost) if x],
               "iterations": its, "history": history, "wall_s": time.perf_counter() - t0,
               "training": metrics(cur["error_mm"], cur["converged"], L), "rows": len(meas)}
     return {"scene": fitted, "report": report, "prediction": cur}
+
+
+def unidentifiable(J: np.ndarray) -> np.ndarray:
+    """(P,) bool: the parameters the data cannot determine, from the Jacobian J (rows, P) of the
+    residual: its columns scaled to unit length (a zero column: flagged), the directions the data
+    see are the right singular vectors whose singular value is at least RANK_RTOL times the
+    largest (at most one per row); a parameter is flagged when more than NULL_SHARE of its unit
+    vector lies outside them (in the null space). Memory: J's size (the thin SVD)."""
+    norm = np.linalg.norm(J, axis=0)
+    lost = ~(norm > 0)
+    live = np.flatnonzero(~lost)
+    if not len(live):
+        return lost
+    _, sv, vt = np.linalg.svd(J[:, live] / norm[live], full_matrices=False)
+    seen = vt[sv >= RANK_RTOL * sv[0]]
+    lost[live] = np.sqrt(np.clip(1.0 - (seen ** 2).sum(axis=0), 0.0, None)) > NULL_SHARE
+    return lost
+
+
+def _standard_deviations(J: np.ndarray, r: np.ndarray, lost: np.ndarray) -> np.ndarray:
+    """(P,) standard deviations sqrt(diag(sigma^2 (J^T J)^-1)) of the identifiable parameters
+    (the ``lost`` ones held at their values, their entries NaN), sigma^2 = |r|^2 / (rows - those
+    parameters) the residual variance per coordinate; all NaN without a residual degree of freedom."""
+    std = np.full(J.shape[1], np.nan)
+    keep = np.flatnonzero(~lost)
+    if len(r) <= len(keep) or not len(keep):
+        return std
+    sigma2 = float(r @ r) / (len(r) - len(keep))
+    std[keep] = np.sqrt(np.clip(np.diag(sigma2 * np.linalg.inv(J[:, keep].T @ J[:, keep])), 0, None))
+    return std
 
 
 def _levenberg_marquardt(evaluate, jacobian, p: np.ndarray, warm, lo: np.ndarray, hi: np.ndarray, max_iter: int,

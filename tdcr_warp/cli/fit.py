@@ -59,8 +59,14 @@ def run(args) -> int:
     print(f"fit in {rep['wall_s']:.0f} s, {rep['iterations']} iterations: training RMSE {t['rmse_mm']:.3f} mm "
           f"({t['rmse_percent_of_length']:.2f}% of the length), aligned {t['rmse_aligned_mm']:.3f} mm")
     for name, v in rep["parameters"].items():
-        print(f"  {name:16s} {v['value']: .6g} +- {v['std']:.2g}")
+        lost = name in rep["unidentifiable"]
+        print(f"  {name:16s} {v['value']: .6g} " + ("NOT IDENTIFIABLE from these data (left at this value)" if lost
+                                                    else f"+- {v['std']:.2g}"))
     print(f"wrote {out}/fitted.toml, fit.json, predictions.csv")
+    if rep["unidentifiable"]:
+        print(f"tdcr-warp fit: the data cannot determine {', '.join(rep['unidentifiable'])} (more rows or other "
+              "motions, or a coarser --detail); the fit is flagged (exit 1)", flush=True)
+        return 1
     return 0
 
 

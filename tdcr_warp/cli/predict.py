@@ -44,12 +44,7 @@ def register(subparsers) -> None:
 
 def run(args) -> int:
     """Predict measured tips of a scene with a [hardware] table (tdcr_warp.apps.hardware)."""
-    from tdcr_warp.apps.hardware import (
-        metrics,
-        predict,
-        predict_recorded,
-        read_measurements,
-    )
+    from tdcr_warp.apps.hardware import metrics, read_measurements
     from tdcr_warp.io.plotting import plot_prediction
     from tdcr_warp.io.scene import load_scene
 
@@ -57,22 +52,19 @@ def run(args) -> int:
     if scene.hardware is None:
         raise InputError(f"{args.scene}: predict needs a [hardware] table (servo_columns, marker_offset, base_offset)")
     meas = read_measurements(args.data, scene.hardware["servo_columns"])
-    out = out_dir(args, Path("out") / Path(args.scene).stem, "metrics.json")
+    out = out_dir(args, Path("out") / Path(args.scene).stem, "metrics.json", "predict.png")
     load_s = load_kernels(scene, args)
-    if args.recorded_order:
-        pred = predict_recorded(scene, meas, device=args.device,
-                                progress=lambda i, n: print(f"  {i} of {n} rows", flush=True))
-    else:
-        pred = predict(scene, meas, device=args.device)
+    pred = _solve(scene, meas, args)
     m = metrics(pred["error_mm"], pred["converged"], float(np.max(scene.robot.length)))
-    how = "one row at a time, as recorded" if args.recorded_order else "one batched solve"
+    how = "one row at a time, as recorded" if args.recorded_order else "batched solves"
     print(f"predicted {len(meas)} rows in {pred['wall_s']:.2f} s ({1e3 * pred['wall_s'] / len(meas):.2f} ms per row, "
           f"{how}; kernel loading excluded): RMSE {m['rmse_mm']:.2f} mm, "
           f"aligned {m['rmse_aligned_mm']:.2f} mm, "
           f"median {m['median_mm']:.2f} mm, p95 {m['p95_mm']:.2f} mm, {m['converged']} of {m['rows']} converged"
           + (f", {int(pred['unstable'].sum())} of them on unstable equilibria" if pred["unstable"].any() else ""))
     write_predictions(out / "predictions.csv", meas, pred)
-    plot_prediction(meas.tip_mm, pred["point_mm"], pred["converged"], out / "predict.png")
+    if m["converged"]:
+        plot_prediction(meas.tip_mm, pred["point_mm"], pred["converged"], out / "predict.png")
     write_json(out / "metrics.json", m | {"unstable": int(pred["unstable"].sum()),
                                           "scene": str(args.scene), "data": [str(d) for d in args.data],
                                           "wall_time_s": pred["wall_s"], "kernel_load_s": load_s,
@@ -80,8 +72,24 @@ def run(args) -> int:
                                           "recorded_order": bool(args.recorded_order),
                                           "units": PREDICT_UNITS,
                                           "settings": settings(scene, args.device or "default")})
-    print(f"wrote {out}/metrics.json, predictions.csv, predict.png")
+    print(f"wrote {out}/metrics.json, predictions.csv, " + ("predict.png" if m["converged"] else
+                                                              "no predict.png: no row converged, nothing to plot"))
     return 0 if m["converged"] == m["rows"] else 1
+
+
+def _solve(scene, meas, args) -> dict:
+    """The rows predicted as the arguments say, with a progress bar on stderr (rows) unless --quiet."""
+    from tdcr_warp.apps.hardware import predict_in_chunks, predict_recorded
+    from tdcr_warp.core.progress import Progress
+
+    bar = None if args.quiet else Progress(len(meas), 1, rate_unit="rows/s")
+    try:
+        if args.recorded_order:
+            return predict_recorded(scene, meas, device=args.device, progress=bar and bar.update)
+        return predict_in_chunks(scene, meas, device=args.device, progress=bar and bar.update)
+    finally:
+        if bar:
+            bar.close()
 
 
 def write_predictions(path: Path, meas, pred: dict) -> None:
