@@ -190,6 +190,11 @@ def _known_options(names) -> None:
 
 
 
+def _shown(values: np.ndarray) -> str:
+    """A per-rod field as the scene gives it: one number, or the list of the rods' values."""
+    return repr(float(values.flat[0])) if values.size == 1 else repr(values.tolist())
+
+
 def check_model_support(robot: Robot, model: str, dynamic: bool = False) -> None:
     """An InputError naming everything in ``robot`` (and, with ``dynamic``, the time stepping)
     that the solver model ``model`` does not solve: the disk model ("disks") is static,
@@ -198,7 +203,7 @@ def check_model_support(robot: Robot, model: str, dynamic: bool = False) -> None
     after the command line's --model, and where the solvers start."""
     if model not in ("disks", "constant_curvature"):
         return
-    found = [f"friction (tendons[{k}].friction = {t.friction.tolist()!r})" for k, t in enumerate(robot.tendons)
+    found = [f"friction (tendons[{k}].friction = {_shown(t.friction)})" for k, t in enumerate(robot.tendons)
              if np.any(t.friction > 0)]
     if robot.obstacles:
         found.append(f"obstacles ({len(robot.obstacles)} [[obstacles]])")
