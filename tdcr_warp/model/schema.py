@@ -361,7 +361,8 @@ _TABLES = (
             checked_by="SweepSpec"),
         Key("distribution", "string", "-", "the distribution", "", REQUIRED,
             allowed=("normal", "uniform", "lognormal"), checked_by="SweepSpec"),
-        Key("params", "numbers", "-", "normal [mean, std], uniform [low, high], lognormal [mu, sigma] of the log",
+        Key("params", "numbers", "-", "finite: normal [mean, std >= 0], uniform [low, high] with low <= high, lognormal "
+            "[mu, sigma >= 0] of the log",
             "(2,)", REQUIRED, checked_by="SweepSpec"),
     )),
 )
