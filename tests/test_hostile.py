@@ -242,3 +242,12 @@ def test_numbers_on_the_command_line_are_read_strictly(tmp_path, capsys, argv, o
 ])
 def test_is_number_takes_ascii_numbers_only(text, number, integer):
     assert is_number(text, integer) is number
+
+
+def test_an_error_is_one_bounded_line_however_long_the_input(tmp_path, capsys):
+    """A megabyte key name was echoed whole (1,000,130 characters on stderr)."""
+    path = _write(tmp_path / "s.toml", BASE + "[loads]\n" + "k" * 1_000_000 + " = 1\n")
+    assert main(["static", path, "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("tdcr-warp: error: ") and "unknown key 'kkk" in err and "Traceback" not in err
+    assert err.count("\n") == 1 and len(err) < 2100 and err.endswith(" characters)\n"), err[-200:]
