@@ -251,3 +251,15 @@ def test_an_error_is_one_bounded_line_however_long_the_input(tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.startswith("tdcr-warp: error: ") and "unknown key 'kkk" in err and "Traceback" not in err
     assert err.count("\n") == 1 and len(err) < 2100 and err.endswith(" characters)\n"), err[-200:]
+
+
+@pytest.mark.parametrize("name,words", [
+    ("a\\u0000.npy", "cannot read the file: embedded null byte"),
+    ("~no_such_user_here/t.npy", "[actuation].tensions = '~no_such_user_here/t.npy': Could not determine home"),
+], ids=["NUL in the name", "~user of no user"])
+def test_odd_table_file_names_exit_2(tmp_path, capsys, name, words):
+    """A ValueError and a RuntimeError traceback before."""
+    path = _write(tmp_path / "s.toml", BASE.replace("tensions = [[1.0]]", f'tensions = "{name}"'))
+    assert main(["static", path, "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("tdcr-warp: error: ") and words in err and "Traceback" not in err, err

@@ -38,6 +38,8 @@ def read_limited(path, limit: int, what: str) -> bytearray:
         fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0))
     except OSError as e:
         raise InputError(f"{what}: {e.strerror or e}") from None
+    except ValueError as e:  # a name with a NUL character
+        raise InputError(f"{what}: {e}") from None
     st = os.fstat(fd)
     if not stat.S_ISREG(st.st_mode):
         os.close(fd)

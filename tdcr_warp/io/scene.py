@@ -131,11 +131,15 @@ def _resolve_files(data: dict, folder: Path) -> None:
     if not isinstance(act, dict):
         return
     steps = act.get("steps")
-    for table, keys in [(act, ROW_KEYS)] + [(e, ("tensions",)) for e in (steps if isinstance(steps, list) else ())
-                                             if isinstance(e, dict)]:
+    steps = list(enumerate(steps)) if isinstance(steps, list) else []
+    for table, keys, where in [(act, ROW_KEYS, "[actuation]")] + [
+            (e, ("tensions",), location("actuation.steps", i)) for i, e in steps if isinstance(e, dict)]:
         for key in keys:
             if isinstance(table.get(key), str):
-                table[key] = str(folder / Path(table[key]).expanduser())
+                try:
+                    table[key] = str(folder / Path(table[key]).expanduser())
+                except RuntimeError as e:  # "~user/..." of no such user
+                    raise InputError(f"{where}.{key} = {table[key]!r}: {e}") from None
 
 
 def _rows(table: Fields, key: str) -> tuple[object, str]:
@@ -183,7 +187,7 @@ def _npy_rows(data: bytearray, key: str) -> np.ndarray:
         raise ValueError(f"a .npy file of format {version[0]}.{version[1]} (this reader takes 1.0 and 2.0)")
     shape, fortran, dtype = readers[version](f, max_header_size=10_000)
     if dtype.kind not in "iuf" or dtype.fields is not None or len(shape) not in (1, 2):
-        raise ValueError(f"expected a (B, K) table of numbers, the header says shape {shape} of {dtype}")
+        raise ValueError(f"expected a (B, K) table of numbers, got shape {shape} of {dtype}")
     need, have = math.prod(shape) * dtype.itemsize, len(data) - f.tell()
     if need != have:
         raise ValueError(f"the header says shape {shape} of {dtype} ({need:,} bytes), the file holds {have:,} "
