@@ -87,7 +87,8 @@ def _npy_header(shape) -> bytes:
     ("t.parquet", b"PAR1 not really", "[actuation].tensions = '{path}': not a readable Parquet file"),
     ("t.npy", np.array([1.0, None], dtype=object), "expected a (B, K) table of numbers, got shape (2,) of object"),
     ("t.npy", np.zeros((2, 2, 2)), "expected a (B, K) table of numbers, got shape (2, 2, 2) of float64"),
-    ("t.npy", _npy_header((40, 2)) + bytes(8), "the header says shape (40, 2) of float64 (640 bytes), the file holds 8 bytes after it"),
+    ("t.npy", _npy_header((40, 2)) + bytes(8),
+     "the header says shape (40, 2) of float64 (640 bytes), the file holds 8 bytes after it"),
     ("t.npy", b"not numpy", "[actuation].tensions = '{path}': the magic string is not correct"),
 ])
 def test_a_bad_table_file_names_the_key_and_the_file(tmp_path, capsys, name, content, message):
