@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from tdcr_warp.kernels.variants import INTEGRATORS, MODELS
-from tdcr_warp.model.checks import parse_number
+from tdcr_warp.model.checks import is_number
 from tdcr_warp.model.options import check_model_support
 from tdcr_warp.model.robot import InputError
 
@@ -161,10 +161,7 @@ def number_type(least=None, integer: bool = False):
     tdcr_warp.model.checks.is_number takes it (no underscores, spaces or non-ASCII digits, which
     Python's int() and float() accept), finite unless ``least`` is None, and >= ``least``."""
     def parse(text: str):
-        try:
-            value = parse_number(text, "the value", integer)
-        except InputError:
-            value = None
+        value = (int(text) if integer else float(text)) if is_number(text, integer) else None
         if value is None or (least is not None and not (math.isfinite(value) and value >= least)):
             what = ("a positive integer" if integer and least == 1 else ("an integer" if integer else "a number")
                     + ("" if least is None else f" >= {least}"))

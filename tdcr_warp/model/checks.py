@@ -9,7 +9,7 @@ import re
 
 import numpy as np
 
-__all__ = ["InputError", "as_field", "check_values", "is_number", "parse_number", "real_array", "require_memory"]
+__all__ = ["InputError", "as_field", "check_values", "is_number", "real_array", "require_memory"]
 
 
 class InputError(ValueError):
@@ -27,14 +27,6 @@ _NUMBER = re.compile(r"[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?|[+-
 def is_number(text: str, integer: bool = False) -> bool:
     """Whether ``text`` is a number (an integer) as written above."""
     return (_INTEGER if integer else _NUMBER).fullmatch(text) is not None
-
-
-def parse_number(text: str, name: str, integer: bool = False) -> float | int:
-    """``text`` as a float (an int), or an InputError naming ``name`` and the text."""
-    if not is_number(text, integer):
-        raise InputError(f"{name} must be {'an integer' if integer else 'a number'} (ASCII digits, no "
-                         f"underscores or spaces), got {text!r}")
-    return int(text) if integer else float(text)
 
 
 def require_memory(nbytes: float, what: str) -> None:

@@ -188,8 +188,6 @@ def _known_options(names) -> None:
         raise InputError(f"unknown solver option {unknown[0]!r} (the StaticOptions fields: {', '.join(known)})")
 
 
-
-
 def _shown(values: np.ndarray) -> str:
     """A per-rod field as the scene gives it: one number, or the list of the rods' values."""
     return repr(float(values.flat[0])) if values.size == 1 else repr(values.tolist())
