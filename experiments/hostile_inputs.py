@@ -1,13 +1,16 @@
 """Hostile input campaign against the CLI: random malformed and extreme scenes and garbage files.
 
-Each input mutates a valid scene (1-4 keys of robot/tendons/actuation/solver/loads/dynamics/sweep
-set to hostile values: NaN, inf, huge, tiny, negative, wrong types and shapes, strings, or
-deleted) or is random bytes/text, and runs `tdcr-warp static|simulate|workspace` on it. Counted
+Each input mutates a valid scene (1-4 keys of robot/tendons/actuation/solver/loads/dynamics/sweep/
+obstacles set to hostile values: NaN, inf, huge, tiny, negative, wrong types and shapes, strings
+such as "disks" or "1_0", or deleted) or is random bytes/text, and runs `tdcr-warp
+static|simulate|workspace` on it, the whole campaign under an address-space cap (--cap-gib, so that
+an input that allocates without bound fails the campaign, not the machine). Counted
 outcomes: exit 0 (complete), 1 (rods failed, reasons recorded), 2 (clean message, no
 results.json). Violations: a traceback or any other exception, a missing results.json after
 exit 0/1, a non-finite number in a rod reported converged, a results.json after exit 2.
 
-    python experiments/hostile_inputs.py [--smoke] [--count 1000] [--seed 0] [--out results/hostile_inputs.json]
+    python experiments/hostile_inputs.py [--smoke] [--count 1000] [--seed 0] [--cap-gib 4]
+                                         [--out results/hostile_inputs.json]
 """
 
 from __future__ import annotations
@@ -17,6 +20,7 @@ import contextlib
 import io
 import json
 import math
+import resource
 import sys
 import tempfile
 import time
@@ -34,13 +38,14 @@ from tdcr_warp.cli import main as cli  # noqa: E402
 GOOD = {"robot": {"length": 0.5, "youngs_modulus": 190e9, "poisson_ratio": 0.3, "radius": 1e-3, "density": 7800.0},
         "tendons": [{"offset": [0.01, 0.0]}, {"offset": [0.0, 0.01]}],
         "actuation": {"tensions": [[1.0, 0.5]]}, "solver": {"nodes": 10}}
-KEYS = {"robot": ["length", "youngs_modulus", "poisson_ratio", "radius", "density", "precurvature", "bogus"],
-        "tendons": ["offset", "length", "turns", "radius", "phase", "bogus"],
+KEYS = {"robot": ["length", "youngs_modulus", "poisson_ratio", "radius", "density", "precurvature", "disks", "bogus"],
+        "tendons": ["offset", "length", "turns", "radius", "phase", "friction", "bogus"],
         "actuation": ["tensions", "steps", "bogus"],
         "solver": ["nodes", "integrator", "model", "precision", "tol", "max_iter", "max_step", "continuation",
                    "preset", "threads", "bogus"],
         "loads": ["gravity", "tip_force", "tip_moment", "point_forces", "bogus"],
-        "dynamics": ["dt", "alpha", "steps", "damping_bending", "damping_shear", "drag", "bogus"],
+        "dynamics": ["dt", "alpha", "steps", "damping_bending", "damping_shear", "drag", "shapes_every", "bogus"],
+        "obstacles": ["kind", "point", "normal", "radius", "stiffness", "bogus"],
         "sweep": ["chunk", "seed", "samples", "grid", "max_total_tension", "bogus"]}
 
 
@@ -55,7 +60,7 @@ def hostile_value(rng):
     if pick == 3:
         return int(rng.integers(-10**9, 10**9))
     if pick == 4:
-        return str(rng.choice(["", "rk4", "x", "float16", "nan", "1e3"]))
+        return str(rng.choice(["", "rk4", "x", "float16", "nan", "1e3", "1_0", "disks", "constant_curvature", "plane"]))
     if pick == 5:
         return bool(rng.integers(2))
     if pick == 6:
@@ -77,7 +82,11 @@ def mutate(rng) -> tuple[str, dict]:
     for _ in range(rng.integers(1, 5)):
         table = str(rng.choice(list(KEYS)))
         key = str(rng.choice(KEYS[table]))
-        target = scene["tendons"][int(rng.integers(2))] if table == "tendons" else scene.setdefault(table, {})
+        if table == "obstacles":
+            scene.setdefault("obstacles", [{"kind": "plane", "point": [0.05, 0.0, 0.0], "normal": [-1.0, 0.0, 0.0]}])
+            target = scene["obstacles"][0]
+        else:
+            target = scene["tendons"][int(rng.integers(2))] if table == "tendons" else scene.setdefault(table, {})
         if rng.random() < 0.2:
             target.pop(key, None)
         else:
@@ -107,8 +116,13 @@ def main(argv=None) -> int:
     ap.add_argument("--count", type=int, default=1000)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--trace", action="store_true", help="print each input to stderr before running it")
+    ap.add_argument("--cap-gib", type=float, default=4.0, help="address-space cap of this process (0: none)")
     ap.add_argument("--out", default=str(ROOT / "results" / "hostile_inputs.json"))
     args = ap.parse_args(argv)
+    if args.cap_gib > 0:
+        hard = resource.getrlimit(resource.RLIMIT_AS)[1]
+        cap = int(args.cap_gib * 2**30) if hard == resource.RLIM_INFINITY else min(int(args.cap_gib * 2**30), hard)
+        resource.setrlimit(resource.RLIMIT_AS, (cap, hard))
     rng = np.random.default_rng(args.seed)
     count = 12 if args.smoke else args.count
     outcomes = {"exit 0": 0, "exit 1": 0, "exit 2": 0}

@@ -129,7 +129,7 @@ def test_the_disk_model_refuses_what_it_does_not_model(change, message):
 def test_too_few_nodes_for_the_disks_and_dynamics_are_refused():
     with pytest.raises(InputError, match="spacer disks"):
         tw.solve_static(robot(10), tensions=[[1.0]], options=tw.StaticOptions(model="disks", nodes=8))
-    with pytest.raises(InputError, match="static for now"):
+    with pytest.raises(InputError, match="does not support dynamics"):
         tw.Simulator(robot(4), tensions=[[1.0]], dt=1e-3, options=tw.StaticOptions(model="disks", nodes=8))
 
 

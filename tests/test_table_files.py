@@ -1,6 +1,7 @@
 """Per-rod tables a scene names as files ([actuation].tensions = "tensions.npy", .csv, .parquet)
 and the Parquet writer of the per-rod tables (tdcr_warp.io.store.write_table)."""
 
+import io
 import json
 import subprocess
 import sys
@@ -46,12 +47,31 @@ def test_table_files_give_the_inline_tensions(tmp_path, monkeypatch, kind):
     assert scene.source["actuation"]["tensions"] == str(folder / name)  # rebuildable from anywhere
 
 
+@pytest.mark.parametrize("version", [(1, 0), (2, 0)])
+@pytest.mark.parametrize("order", ["C", "F"])
+def test_npy_files_of_either_format_and_order_are_read_as_saved(tmp_path, version, order):
+    """The .npy reader reads the header itself (to check it before allocating): both formats numpy
+    writes, Fortran order, integer tables."""
+    for table in (np.asarray(TAU, order=order), np.asarray(np.round(TAU * 10), dtype=np.int32, order=order)):
+        with open(tmp_path / "t.npy", "wb") as f:
+            np.lib.format.write_array(f, table, version=version)
+        (tmp_path / "s.toml").write_text(from_file("t.npy"))
+        assert np.array_equal(load_scene(tmp_path / "s.toml").tensions, table)
+
+
 def test_steps_and_displacements_read_files_too(tmp_path):
     np.save(tmp_path / "later.npy", TAU[:, ::-1])
     text = inline(TAU) + '[dynamics]\ndt = 0.01\nsteps = 4\n[[actuation.steps]]\nstart = 3\ntensions = "later.npy"\n'
     (tmp_path / "s.toml").write_text(text)
     schedule = load_scene(tmp_path / "s.toml").dynamics.schedule
     assert np.array_equal(schedule[:, 1], TAU) and np.array_equal(schedule[:, 3], TAU[:, ::-1])
+
+
+def _npy_header(shape) -> bytes:
+    """A .npy header of float64 of ``shape`` (the data to follow)."""
+    f = io.BytesIO()
+    np.lib.format.write_array_header_1_0(f, {"descr": "<f8", "fortran_order": False, "shape": shape})
+    return f.getvalue()
 
 
 @pytest.mark.parametrize("name, content, message", [
@@ -65,6 +85,11 @@ def test_steps_and_displacements_read_files_too(tmp_path):
     ("t.parquet", pa.table({"a": [1.0, 2.0], "b": ["x", "y"]}), "column 'b' holds string, not numbers"),
     ("t.parquet", pa.table({"a": [1.0, None], "b": [1.0, 2.0]}), "column 'a' has 1 missing values"),
     ("t.parquet", b"PAR1 not really", "[actuation].tensions = '{path}': not a readable Parquet file"),
+    ("t.npy", np.array([1.0, None], dtype=object), "expected a (B, K) table of numbers, got shape (2,) of object"),
+    ("t.npy", np.zeros((2, 2, 2)), "expected a (B, K) table of numbers, got shape (2, 2, 2) of float64"),
+    ("t.npy", _npy_header((40, 2)) + bytes(8),
+     "the header says shape (40, 2) of float64 (640 bytes), the file holds 8 bytes after it"),
+    ("t.npy", b"not numpy", "[actuation].tensions = '{path}': the magic string is not correct"),
 ])
 def test_a_bad_table_file_names_the_key_and_the_file(tmp_path, capsys, name, content, message):
     path = tmp_path / name

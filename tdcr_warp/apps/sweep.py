@@ -52,11 +52,11 @@ from tdcr_warp.io.store import (
 )
 from tdcr_warp.model.fields import parse_field
 from tdcr_warp.model.robot import InputError
+from tdcr_warp.model.schema import MAX_ROWS, SCHEMA, out_of_bounds, span
 
 __all__ = ["Samples", "SweepRun", "SweepSpec", "make_samples", "open_sweep", "run_sweep"]
 
 DISTRIBUTIONS = ("normal", "uniform", "lognormal")
-MAX_ROWS = 10**9  # rows of one sweep (a bound on typing errors: 1e9 rods are days of work)
 
 
 class SweepSpec:
@@ -74,10 +74,10 @@ class SweepSpec:
         self.seed = sw.get("seed", 0)
         self.samples = sw.get("samples")
         self.max_total = sw.get("max_total_tension")
-        for name, v in (("chunk", self.chunk), ("seed", self.seed)):
-            if not isinstance(v, int) or isinstance(v, bool) or v < (1 if name == "chunk" else 0):
-                raise InputError(f"[sweep].{name} must be a {'positive' if name == 'chunk' else 'non-negative'} "
-                                 f"integer, got {v!r}")
+        for name, v in (("chunk", self.chunk), ("seed", self.seed), ("samples", self.samples)):
+            bounds = SCHEMA["sweep"].key(name).bounds
+            if v is not None and (not isinstance(v, int) or isinstance(v, bool) or out_of_bounds(v, bounds)):
+                raise InputError(f"[sweep].{name} must be an integer {span(bounds)}, got {v!r}")
         if self.max_total is not None and (isinstance(self.max_total, bool) or not isinstance(self.max_total, (int, float))
                                            or not self.max_total >= 0):
             raise InputError(f"[sweep].max_total_tension must be a non-negative number [N], got {self.max_total!r}")
@@ -87,8 +87,8 @@ class SweepSpec:
         self.grid = []
         for name, spec in grid.items():
             parse_field(name)
-            if (not isinstance(spec, list) or len(spec) != 3 or not isinstance(spec[2], int) or spec[2] < 1
-                    or not all(isinstance(x, (int, float)) for x in spec[:2])):
+            if (not isinstance(spec, list) or len(spec) != 3 or not _is_int(spec[2]) or spec[2] < 1
+                    or not all(_is_finite(x) for x in spec[:2])):
                 raise InputError(f"[sweep.grid].{name!r}: expected [start, stop, count], got {spec!r}")
             if spec[2] > MAX_ROWS:
                 raise InputError(f"[sweep.grid].{name!r}: count {spec[2]:,} is more than {MAX_ROWS:,} rows")
@@ -103,11 +103,9 @@ class SweepSpec:
                 raise InputError(f"{where}: expected keys field, distribution, params, got {u!r}")
             if u.get("distribution") not in DISTRIBUTIONS:
                 raise InputError(f"{where}.distribution must be one of {DISTRIBUTIONS}, got {u.get('distribution')!r}")
-            p = u.get("params")
-            if not (isinstance(p, list) and len(p) == 2 and all(isinstance(x, (int, float)) for x in p)) or p[1] < 0:
-                raise InputError(f"{where}.params: expected [a, b] with b >= 0, got {p!r}")
+            _check_params(u, where)
             parse_field(u.get("field", ""))
-            self.uncertainty.append((u["field"], u["distribution"], (float(p[0]), float(p[1]))))
+            self.uncertainty.append((u["field"], u["distribution"], tuple(map(float, u["params"]))))
         rows = math.prod(len(v) for _, v in self.grid) if self.grid else self.samples
         if isinstance(rows, int) and rows > MAX_ROWS:
             raise InputError(f"the sweep has {rows:,} rows, more than {MAX_ROWS:,}: split it into several sweeps")
@@ -116,6 +114,28 @@ class SweepSpec:
         if not self.grid and not (isinstance(self.samples, int) and not isinstance(self.samples, bool)
                                   and self.samples >= 1):
             raise InputError(f"[sweep].samples must be a positive integer without a grid, got {self.samples!r}")
+
+
+def _is_int(x) -> bool:
+    return isinstance(x, int) and not isinstance(x, bool)
+
+
+def _is_finite(x) -> bool:
+    return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+
+
+def _check_params(u: dict, where: str) -> None:
+    """An [[uncertainty]] entry's params: two finite numbers, normal [mean, std >= 0], uniform
+    [low, high] with low <= high, lognormal [mu, sigma >= 0]."""
+    p, dist = u.get("params"), u["distribution"]
+    first, second = {"normal": ("mean", "std"), "uniform": ("low", "high"), "lognormal": ("mu", "sigma")}[dist]
+    names = f"{dist} [{first}, {second}]"
+    if not (isinstance(p, list) and len(p) == 2 and all(_is_finite(x) for x in p)):
+        raise InputError(f"{where}.params: expected {names}, two finite numbers, got {p!r}")
+    if dist == "uniform" and p[0] > p[1]:
+        raise InputError(f"{where}.params: {names} needs low <= high, got {p!r}")
+    if dist != "uniform" and p[1] < 0:
+        raise InputError(f"{where}.params: {names} needs {second} >= 0, got {p!r}")
 
 
 class Samples:

@@ -89,6 +89,15 @@ def _import_solver():
     return solver
 
 
+MESSAGE_CHARS = 2000  # the most characters of an error message printed (a hostile key or value can be megabytes)
+
+
+def one_line(message: str) -> str:
+    """``message`` on one line (newlines as spaces), at most MESSAGE_CHARS characters of it."""
+    flat = " ".join(message.splitlines())
+    return flat if len(flat) <= MESSAGE_CHARS else f"{flat[:MESSAGE_CHARS]} ... ({len(flat):,} characters)"
+
+
 def main(argv=None) -> int:
     """Run the command line; returns the exit status (0 ok, 1 some rods failed, 2 bad input,
     130 interrupted). A malformed command line (argparse) raises SystemExit(2) after printing
@@ -116,11 +125,8 @@ def main(argv=None) -> int:
         Progress.end_line()
         print("tdcr-warp: interrupted", file=sys.stderr)
         return 130
-    except InputError as e:
-        print(f"tdcr-warp: error: {e}", file=sys.stderr)
-        return 2
-    except OSError as e:
-        print(f"tdcr-warp: error: {e}", file=sys.stderr)
+    except (InputError, OSError) as e:
+        print(f"tdcr-warp: error: {one_line(str(e))}", file=sys.stderr)
         return 2
     except SweepError as e:
         print(f"tdcr-warp: error: {e}", file=sys.stderr)

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import tempfile
 from dataclasses import asdict, fields, replace
@@ -14,6 +15,8 @@ from pathlib import Path
 import numpy as np
 
 from tdcr_warp.kernels.variants import INTEGRATORS, MODELS
+from tdcr_warp.model.checks import is_number
+from tdcr_warp.model.options import check_model_support
 from tdcr_warp.model.robot import InputError
 
 # Batches up to this size are written per rod into the JSON results; larger ones into a Parquet
@@ -116,10 +119,13 @@ def settings(scene, device) -> dict:
     return out
 
 
-def apply_overrides(scene, args):
-    """The scene with the [solver] fields given on the command line (OVERRIDES) replaced."""
+def apply_overrides(scene, args, dynamic: bool = False):
+    """The scene with the [solver] fields given on the command line (OVERRIDES) replaced, its
+    model checked against the robot (and, with ``dynamic``, against time stepping)."""
     over = {k: getattr(args, k) for k in OVERRIDES if getattr(args, k) is not None}
-    return replace(scene, options=replace(scene.options, **over)) if over else scene
+    scene = replace(scene, options=replace(scene.options, **over)) if over else scene
+    check_model_support(scene.robot, scene.options.model, dynamic)
+    return scene
 
 
 def overridden_source(scene, args) -> dict:
@@ -150,15 +156,21 @@ def load_kernels(scene, args, dynamic: bool = False) -> float:
     return load_kernels(scene.robot, scene.options, args.device, dynamic=dynamic)
 
 
-def positive_int(text: str) -> int:
-    """The argparse type of the counts (--steps, --nodes, --max-iter): an integer >= 1."""
-    try:
-        n = int(text)
-    except ValueError:
-        n = 0
-    if n < 1:
-        raise argparse.ArgumentTypeError(f"must be a positive integer, got {text!r}")
-    return n
+def number_type(least=None, integer: bool = False):
+    """An argparse type: a number (an int with ``integer``) written as
+    tdcr_warp.model.checks.is_number takes it (no underscores, spaces or non-ASCII digits, which
+    Python's int() and float() accept), finite unless ``least`` is None, and >= ``least``."""
+    def parse(text: str):
+        value = (int(text) if integer else float(text)) if is_number(text, integer) else None
+        if value is None or (least is not None and not (math.isfinite(value) and value >= least)):
+            what = ("a positive integer" if integer and least == 1 else ("an integer" if integer else "a number")
+                    + ("" if least is None else f" >= {least}"))
+            raise argparse.ArgumentTypeError(f"must be {what}, got {text!r} (ASCII digits, no underscores)")
+        return value
+    return parse
+
+
+positive_int = number_type(1, integer=True)  # the counts (--steps, --nodes, --max-iter, --budget): an integer >= 1
 
 
 def add_command(subparsers, name: str, helptext: str, run) -> argparse.ArgumentParser:

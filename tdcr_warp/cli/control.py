@@ -43,7 +43,7 @@ def run(args) -> int:
     from tdcr_warp.io.plotting import plot_control
     from tdcr_warp.io.scene import load_scene
 
-    scene = apply_overrides(load_scene(args.scene), args)
+    scene = apply_overrides(load_scene(args.scene), args, dynamic=True)
     spec, ctl = scene.dynamics, scene.control
     if spec is None or ctl is None:
         raise InputError(f"{args.scene}: control needs [dynamics] and [control] tables")

@@ -47,7 +47,7 @@ def run(args) -> int:
     from tdcr_warp.io.plotting import plot_search
     from tdcr_warp.io.scene import load_scene, scene_from_dict
 
-    base = apply_overrides(load_scene(args.scene), args)
+    base = apply_overrides(load_scene(args.scene), args, dynamic=True)
     if base.search is None or base.dynamics is None:
         raise InputError(f"{args.scene}: search needs [dynamics], [control] and [search] tables")
     scene = replace(scene_from_dict(overridden_source(base, args)), text=base.text)

@@ -44,7 +44,7 @@ def run(args) -> int:
     from tdcr_warp.io.scene import load_scene
     from tdcr_warp.physics.dynamics import Simulator
 
-    scene = apply_overrides(load_scene(args.scene), args)
+    scene = apply_overrides(load_scene(args.scene), args, dynamic=True)
     spec = scene.dynamics
     if spec is None:
         raise InputError(f"{args.scene}: simulate needs a [dynamics] table (dt, steps, ...)")

@@ -14,6 +14,7 @@ from tdcr_warp.cli.common import (
     add_log_arguments,
     add_solver_arguments,
     apply_overrides,
+    number_type,
     overridden_source,
     settings,
     write_json,
@@ -30,16 +31,17 @@ def register(subparsers) -> None:
         p = add_command(subparsers, name, helptext, run)
         add_solver_arguments(p)
         add_log_arguments(p)
-        p.add_argument("--chunk", type=int, help="rods per chunk (default [sweep].chunk)")
+        p.add_argument("--chunk", type=number_type(integer=True), help="rods per chunk (default [sweep].chunk)")
         p.add_argument("--resume", action="store_true", help="continue an interrupted sweep in --out")
         p.add_argument("--overwrite", action="store_true",
                        help="replace the results of another sweep in --out (removed before this one starts)")
-        p.add_argument("--max-chunks", type=int, help="stop after computing this many chunks")
+        p.add_argument("--max-chunks", type=number_type(integer=True), help="stop after computing this many chunks")
         p.add_argument("--backend", choices=["local", "ray"], default="local",
                        help="local: in this process (default); ray: chunks as Ray tasks (pip install -e .[ray])")
         p.add_argument("--address", help="Ray cluster address (default: start a local Ray for the run)")
-        p.add_argument("--workers", type=int, help="CPUs of the local Ray (default: all cores)")
-        p.add_argument("--gpus-per-task", type=float,
+        p.add_argument("--workers", type=number_type(1, integer=True),
+                       help="CPUs of the local Ray (default: all cores)")
+        p.add_argument("--gpus-per-task", type=number_type(0),
                        help="GPUs per Ray task (default 1 with --device cuda..., else 0)")
         p.add_argument("--shapes", action="store_true", help="also save every rod's backbone positions")
 
@@ -50,9 +52,11 @@ def run(args) -> int:
     from tdcr_warp.apps.sweep import peak_memory_mb, run_sweep
     from tdcr_warp.io.scene import load_scene
 
-    base = apply_overrides(load_scene(args.scene), args)
-    data = overridden_source(base, args)
     job_name = args.command
+    scene = load_scene(args.scene)
+    base = apply_overrides(scene, args, dynamic=job_name == "gain-grid" or (job_name == "montecarlo"
+                                                                           and scene.control is not None))
+    data = overridden_source(base, args)
     dev = args.device
     if job_name == "gain-grid" and (base.control is None or base.dynamics is None):
         raise InputError("gain-grid needs [dynamics] and [control] tables")

@@ -19,6 +19,8 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
+from tdcr_warp.cli.common import number_type
+
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"  # in a clone of the repository
 # (command, scene under examples/): the first command of the README, its tour, ik. Commands that
 # share kernels stand apart (simulate and control: the dynamics), so that two jobs do not build one
@@ -43,7 +45,8 @@ def register(subparsers) -> None:
     p.add_argument("scenes", nargs="*", metavar="SCENE",
                    help="scene files whose statics to build (default: the README's and the tutorials' example runs)")
     p.add_argument("--device", default=None, help="cpu or cuda:0 (default: Warp's default device)")
-    p.add_argument("--jobs", type=int, default=min(2, os.cpu_count() or 1), help="runs at a time (default: 2)")
+    p.add_argument("--jobs", type=number_type(1, integer=True), default=min(2, os.cpu_count() or 1),
+                   help="runs at a time (default: 2)")
     p.add_argument("--quiet", action="store_true", help="print nothing unless a run fails")
     p.add_argument("-v", "--verbose", action="store_true", help="also every run's own output")
 

@@ -19,6 +19,7 @@ import warp as wp
 from tdcr_warp.kernels import layout
 from tdcr_warp.kernels.structs import SLOT_WIDTH
 from tdcr_warp.kernels.variants import ALL, Features
+from tdcr_warp.model.options import check_model_support
 from tdcr_warp.model.robot import InputError, Robot, route_table
 
 PRECISIONS = {"float64": (wp.float64, np.float64), "float32": (wp.float32, np.float32)}
@@ -74,13 +75,12 @@ def _grid_row(L: float, breaks: np.ndarray, nodes: int):
 
 
 def check_disk_model(robot: Robot, tendon_len: np.ndarray) -> None:
-    """The disk model needs disks, frictionless tendons, and every tendon ending at a disk."""
+    """The disk model needs disks, no friction or obstacles (check_model_support), and every tendon ending at a
+    disk."""
     if not len(robot.disks):
         raise InputError("model = 'disks' needs the robot's disks ([robot] disks = a count per section or "
                          "a list of arc lengths)")
-    if robot.has_friction:
-        raise InputError("model = 'disks' is frictionless for now: set every tendon's friction to 0, or use "
-                         "model = 'coupled' for capstan friction")
+    check_model_support(robot, "disks")
     tol = 1e-9 * float(robot.length.max())
     off = np.abs(tendon_len[..., None] - robot.disks).min(axis=-1) > tol if tendon_len.size else np.zeros((1, 0), bool)
     if off.any():
@@ -236,8 +236,6 @@ class Tables:
         tendon_len = robot.tendon_lengths() if robot.tendons else np.zeros((1, 0))
         if disks:
             check_disk_model(robot, tendon_len)
-            if robot.obstacles:
-                raise InputError("model = 'disks' does not model contact yet: use model = 'coupled' with obstacles")
         point_s, point_f = robot.pack_point_forces(disk_weights=disks)
         knots = [t.points[1:-1, 0] for t in robot.tendons if t.routing == "points"] + ([robot.disks] if disks else [])
         grid, term_node, point_node = make_grid(robot.length, tendon_len, point_s, nodes,

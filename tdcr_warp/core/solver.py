@@ -37,6 +37,7 @@ from tdcr_warp.kernels.energy import make_energy_kernels
 from tdcr_warp.kernels.history import make_history_kernels
 from tdcr_warp.kernels.shooting import make_shooting_kernels
 from tdcr_warp.kernels.variants import MODELS
+from tdcr_warp.model.options import check_model_support
 from tdcr_warp.model.robot import Robot
 
 CHECK_EVERY = 4  # CUDA: Newton iterations between reads of the active count
@@ -123,6 +124,7 @@ def load_kernels(robot: Robot, options, device=None, *, dynamic: bool = False) -
     robot with these options needs: statics, and with ``dynamic`` the time step too. Returns
     the seconds it took, so that callers can report solve rates without it."""
     t0 = time.perf_counter()
+    check_model_support(robot, options.model, dynamic)  # before a kernel of a combination that does not exist
     if options.model not in MODELS:  # the closed-form rung has no kernels
         return 0.0
     dev = wp.get_device(device)

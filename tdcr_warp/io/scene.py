@@ -10,6 +10,8 @@ the key and the value.
 
 from __future__ import annotations
 
+import io
+import math
 import re
 import tomllib
 from dataclasses import dataclass, replace
@@ -18,7 +20,9 @@ from pathlib import Path
 import numpy as np
 
 from tdcr_warp.io.drawing import display_options
-from tdcr_warp.model.options import StaticOptions
+from tdcr_warp.io.files import SCENE_LIMIT, TABLE_LIMIT, read_limited
+from tdcr_warp.model.checks import is_number
+from tdcr_warp.model.options import StaticOptions, check_model_support
 from tdcr_warp.model.robot import (
     InputError,
     Obstacle,
@@ -31,7 +35,16 @@ from tdcr_warp.model.robot import (
     check_tensions,
     require_memory,
 )
-from tdcr_warp.model.schema import REQUIRED, SCHEMA, TOP_TABLES, Key, Table, location
+from tdcr_warp.model.schema import (
+    REQUIRED,
+    SCHEMA,
+    TOP_TABLES,
+    Key,
+    Table,
+    location,
+    out_of_bounds,
+    span,
+)
 from tdcr_warp.model.tippath import path_from_table
 
 __all__ = ["DynamicsSpec", "Fields", "Scene", "load_scene", "read_rows", "scene_from_dict", "search_options"]
@@ -86,12 +99,12 @@ class Scene:
 
 
 def load_scene(path) -> Scene:
-    """Read and validate a TOML scene; every problem is an :class:`InputError` naming the file."""
+    """Read and validate a TOML scene (a regular file of at most SCENE_LIMIT bytes); every problem
+    is an :class:`InputError` naming the file."""
     path = Path(path)
+    raw = read_limited(path, SCENE_LIMIT, f"cannot read scene {str(path)!r}")
     try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as e:
-        raise InputError(f"cannot read scene {str(path)!r}: {e.strerror or e}") from None
+        text = raw.decode("utf-8")
     except UnicodeDecodeError as e:
         raise InputError(f"{path}: not UTF-8 text (TOML files are UTF-8): byte {e.start} is {e.object[e.start]:#04x}") \
             from None
@@ -102,8 +115,9 @@ def load_scene(path) -> Scene:
     except RecursionError:  # tomllib parses nested arrays and inline tables recursively
         raise InputError(f"{path}: invalid TOML: arrays or inline tables nested too deeply to parse (a scene "
                          f"takes at most {MAX_DEPTH} levels)") from None
-    _resolve_files(data, path.absolute().parent)
     try:
+        _check_depth(data)  # before anything walks or prints the tables
+        _resolve_files(data, path.absolute().parent)
         return replace(scene_from_dict(data), text=text)
     except InputError as e:
         raise InputError(f"{path}: {e}") from None
@@ -117,11 +131,15 @@ def _resolve_files(data: dict, folder: Path) -> None:
     if not isinstance(act, dict):
         return
     steps = act.get("steps")
-    for table, keys in [(act, ROW_KEYS)] + [(e, ("tensions",)) for e in (steps if isinstance(steps, list) else ())
-                                             if isinstance(e, dict)]:
+    steps = list(enumerate(steps)) if isinstance(steps, list) else []
+    for table, keys, where in [(act, ROW_KEYS, "[actuation]")] + [
+            (e, ("tensions",), location("actuation.steps", i)) for i, e in steps if isinstance(e, dict)]:
         for key in keys:
             if isinstance(table.get(key), str):
-                table[key] = str(folder / Path(table[key]).expanduser())
+                try:
+                    table[key] = str(folder / Path(table[key]).expanduser())
+                except RuntimeError as e:  # "~user/..." of no such user
+                    raise InputError(f"{where}.{key} = {table[key]!r}: {e}") from None
 
 
 def _rows(table: Fields, key: str) -> tuple[object, str]:
@@ -138,25 +156,44 @@ def read_rows(path, key: str, where: str) -> np.ndarray:
     (K,)), ``.csv`` (comma-separated numbers, one line per rod, an optional header line) or
     ``.parquet``. A CSV or Parquet table with columns ``key[0]``, ``key[1]``, ... (as
     ``tdcr-warp static`` writes them into rods.parquet) gives those, in order; otherwise every
-    column, in order. Every problem is an InputError naming ``where``, the file and what is wrong."""
+    column, in order. The file must be a regular file of at most TABLE_LIMIT bytes, and what
+    its header promises (a .npy's shape, a Parquet file's rows) must fit that too, checked before
+    anything is allocated. Every problem is an InputError naming ``where``, the file and what is
+    wrong."""
     path = Path(path)
     what = f"{where} = {str(path)!r}"
-    if path.suffix.lower() not in TABLE_FILES:
+    suffix = path.suffix.lower()
+    if suffix not in TABLE_FILES:
         raise InputError(f"{what}: a per-rod table file must end in {', '.join(TABLE_FILES)}")
+    data = read_limited(path, TABLE_LIMIT, f"{what}: cannot read the file")
     try:
-        if path.suffix.lower() == ".npy":
-            table = np.load(path, allow_pickle=False)
-        elif path.suffix.lower() == ".csv":
-            table = _csv_rows(path, key)
-        else:
-            table = _parquet_rows(path, key)
-    except OSError as e:
-        raise InputError(f"{what}: cannot read the file: {e.strerror or e}") from None
-    except ValueError as e:
+        table = {".npy": _npy_rows, ".csv": _csv_rows, ".parquet": _parquet_rows}[suffix](data, key)
+    except (ValueError, UnicodeDecodeError) as e:
         raise InputError(f"{what}: {e}") from None
     if table.dtype.kind not in "iuf" or table.ndim not in (1, 2) or table.size == 0:
         raise InputError(f"{what}: expected a (B, K) table of numbers, got shape {table.shape} of {table.dtype}")
     return table
+
+
+def _npy_rows(data: bytearray, key: str) -> np.ndarray:
+    """A .npy file's array, its header read first: numbers only (no pickled objects), of 1 or 2
+    dimensions, and exactly as many data bytes as its shape and type say (a header may claim any
+    shape: numpy would allocate it before reading)."""
+    fmt = np.lib.format
+    f = io.BytesIO(data)
+    version = fmt.read_magic(f)
+    readers = {(1, 0): fmt.read_array_header_1_0, (2, 0): fmt.read_array_header_2_0}
+    if version not in readers:
+        raise ValueError(f"a .npy file of format {version[0]}.{version[1]} (this reader takes 1.0 and 2.0)")
+    shape, fortran, dtype = readers[version](f, max_header_size=10_000)
+    if dtype.kind not in "iuf" or dtype.fields is not None or len(shape) not in (1, 2):
+        raise ValueError(f"expected a (B, K) table of numbers, got shape {shape} of {dtype}")
+    need, have = math.prod(shape) * dtype.itemsize, len(data) - f.tell()
+    if need != have:
+        raise ValueError(f"the header says shape {shape} of {dtype} ({need:,} bytes), the file holds {have:,} "
+                         "bytes after it")
+    return np.frombuffer(data, dtype=dtype, count=math.prod(shape), offset=f.tell()).reshape(
+        shape, order="F" if fortran else "C").copy()
 
 
 def _columns(names: list[str], key: str) -> list[int]:
@@ -165,42 +202,51 @@ def _columns(names: list[str], key: str) -> list[int]:
     return [names.index(n) for n in mine] if mine else list(range(len(names)))
 
 
-def _csv_rows(path: Path, key: str) -> np.ndarray:
-    with open(path, encoding="utf-8") as f:
-        first = f.readline()
+def _csv_rows(data: bytearray, key: str) -> np.ndarray:
+    """A CSV table's numbers; its first line is a header unless every cell is a number (as
+    tdcr_warp.model.checks.is_number reads them)."""
+    text = data.decode("utf-8")
+    first, _, rest = text.partition("\n")
     names = [c.strip() for c in first.split(",")]
-    try:
-        [float(c) for c in names]
-        header = False
-    except ValueError:
-        header = True
+    header = not all(is_number(c) for c in names)
+    if header and not rest.strip():
+        raise ValueError(f"no rows of numbers: only the line {first.strip()[:200]!r}, read as a header (numbers "
+                         "are written in ASCII digits, without underscores)")
     cols = _columns(names, key) if header else None
-    return np.loadtxt(path, delimiter=",", skiprows=int(header), usecols=cols, ndmin=2, dtype=np.float64,
-                      encoding="utf-8")
+    return np.loadtxt(io.StringIO(text), delimiter=",", skiprows=int(header), usecols=cols, ndmin=2,
+                      dtype=np.float64)
 
 
-def _parquet_rows(path: Path, key: str) -> np.ndarray:
-    """The table's numeric columns (read from their buffers: Arrow's to_numpy imports pandas)."""
+def _parquet_rows(data: bytearray, key: str) -> np.ndarray:
+    """The table's numeric columns (read from their buffers: Arrow's to_numpy imports pandas);
+    their types and the rows the footer declares are checked before any column is read."""
     import pyarrow as pa
     import pyarrow.parquet as pq
 
     try:
-        f = pq.ParquetFile(path)
+        f = pq.ParquetFile(pa.BufferReader(data))
     except pa.ArrowException as e:
         raise ValueError(f"not a readable Parquet file ({e})") from None
     names = f.schema_arrow.names
     chosen = [names[i] for i in _columns(names, key)]
+    kinds = {}
+    for name in chosen:
+        t = f.schema_arrow.field(name).type
+        kinds[name] = "f" if pa.types.is_floating(t) else "i" if pa.types.is_signed_integer(t) else \
+            "u" if pa.types.is_unsigned_integer(t) else None
+        if kinds[name] is None:
+            raise ValueError(f"column {name!r} holds {t}, not numbers")
+    rows = f.metadata.num_rows
+    if rows * len(chosen) * 8 > TABLE_LIMIT:
+        raise ValueError(f"the file declares {rows:,} rows of {len(chosen)} columns, more than the "
+                         f"{TABLE_LIMIT // 2**20} MiB of numbers a per-rod table takes")
     table = f.read(columns=chosen, use_pandas_metadata=False)
     out = np.empty((table.num_rows, len(chosen)))
     for j, name in enumerate(chosen):
         col = table.column(name).combine_chunks()
-        kind = "f" if pa.types.is_floating(col.type) else "i" if pa.types.is_signed_integer(col.type) else \
-            "u" if pa.types.is_unsigned_integer(col.type) else None
-        if kind is None:
-            raise ValueError(f"column {name!r} holds {col.type}, not numbers")
         if col.null_count:
             raise ValueError(f"column {name!r} has {col.null_count} missing values")
-        values = np.frombuffer(col.buffers()[1], dtype=f"{kind}{col.type.bit_width // 8}")
+        values = np.frombuffer(col.buffers()[1], dtype=f"{kinds[name]}{col.type.bit_width // 8}")
         out[:, j] = values[col.offset:col.offset + len(col)]
     return out
 
@@ -239,9 +285,11 @@ def _number(value, where: str) -> float:
     return float(value)
 
 
-def _integer(value, where: str) -> int:
+def _integer(value, where: str, bounds: tuple) -> int:
     if not isinstance(value, int) or isinstance(value, bool):
-        raise InputError(f"{where}: expected an integer, got {value!r}")
+        raise InputError(f"{where}: expected an integer, got {_show(value)}")
+    if out_of_bounds(value, bounds):
+        raise InputError(f"{where} must be an integer {span(bounds)}, got {value!r}")
     return value
 
 
@@ -336,7 +384,7 @@ def _checked(value, key: Key, name: str):
     if kind == "number":
         return _number(value, name)
     if kind == "integer":
-        return _integer(value, name)
+        return _integer(value, name, key.bounds)
     ok = {"string": isinstance(value, str), "bool": isinstance(value, bool), "table": isinstance(value, dict),
           "tables": isinstance(value, list) and all(isinstance(v, dict) for v in value),
           "strings": isinstance(value, list) and all(isinstance(v, str) for v in value)}[kind]
@@ -421,9 +469,10 @@ def _dynamics(dyn: Fields | None, act: Fields, robot: Robot, tensions: np.ndarra
             raise InputError("[[actuation.steps]] needs a [dynamics] table")
         return None
     steps = dyn.get("steps")
-    if steps < 1:
-        raise InputError(f"[dynamics].steps must be >= 1, got {steps}")
     dt, alpha, shapes_every = dyn.get("dt"), dyn.get("alpha"), dyn.get("shapes_every")
+    if shapes_every > steps:
+        raise InputError(f"[dynamics].shapes_every = {shapes_every} is more than steps = {steps}: no shape would be "
+                         "stored (0 stores the tips only)")
     require_memory(16.0 * steps * tensions.shape[0] * max(1, tensions.shape[1]),
                    f"[dynamics].steps = {steps} for {tensions.shape[0]} rod(s): the tension schedule")
     schedule = np.repeat(tensions[:, None, :], steps, axis=1)
@@ -565,12 +614,13 @@ def scene_from_dict(data: dict) -> Scene:
     """Validate a parsed scene (the dict tomllib returns) and build its :class:`Scene`."""
     if not isinstance(data, dict):
         raise InputError(f"a scene must be a table, got {type(data).__name__}")
-    scene = Fields(data, SCENE, "the scene")
     _check_depth(data)
+    scene = Fields(data, SCENE, "the scene")
     robot = _robot(scene)
     act = scene.table("actuation")
     tensions = _tensions(act, robot)
     options = _options(scene)
+    check_model_support(robot, options.model)
     dynamics = _dynamics(scene.table("dynamics"), act, robot, tensions)
     B = tensions.shape[0]
     control = _control(scene, robot, B, dynamics)

@@ -5,14 +5,28 @@ from __future__ import annotations
 
 import numbers
 import os
+import re
 
 import numpy as np
 
-__all__ = ["InputError", "as_field", "check_values", "real_array", "require_memory"]
+__all__ = ["InputError", "as_field", "check_values", "is_number", "real_array", "require_memory"]
 
 
 class InputError(ValueError):
     """Bad user input; the message names the field and the offending value."""
+
+
+# Numbers written as text (command-line arguments, CSV cells): ASCII digits, an optional sign, point
+# and exponent, or inf / nan. Python's int() and float() also take "1_000", " 7 " and non-ASCII
+# digits ("\u0663"); a careless "1_0" for "1.0" or "10" is refused instead. (In a TOML scene, 1_000
+# is TOML's own integer syntax, read by the TOML parser.)
+_INTEGER = re.compile(r"[+-]?[0-9]+")
+_NUMBER = re.compile(r"[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?|[+-]?(?:inf|infinity|nan)", re.IGNORECASE)
+
+
+def is_number(text: str, integer: bool = False) -> bool:
+    """Whether ``text`` is a number (an integer) as written above."""
+    return (_INTEGER if integer else _NUMBER).fullmatch(text) is not None
 
 
 def require_memory(nbytes: float, what: str) -> None:

@@ -9,7 +9,7 @@ from tdcr_warp.model.robot import InputError
 
 __all__ = ["parse_field"]
 
-_TOKEN = re.compile(r"([A-Za-z_]+)(?:\[(\d+)\])?")
+_TOKEN = re.compile(r"([A-Za-z_]+)(?:\[([0-9]+)\])?")
 
 
 def parse_field(name: str) -> list:

@@ -9,12 +9,14 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, fields, replace
 
+import numpy as np
+
 from tdcr_warp.kernels import layout
 from tdcr_warp.kernels.variants import INTEGRATORS, MODELS, RODS
-from tdcr_warp.model.robot import InputError
+from tdcr_warp.model.robot import InputError, Robot
 
-__all__ = ["COMMANDS", "DRIVERS", "PRECISIONS", "PRESETS", "StaticOptions", "describe_status", "failure_reasons",
-           "status_names"]
+__all__ = ["COMMANDS", "DRIVERS", "PRECISIONS", "PRESETS", "StaticOptions", "check_model_support", "describe_status",
+           "failure_reasons", "status_names"]
 
 PRECISIONS = ("float64", "float32")
 COMMANDS = ("tension", "displacement")  # what the tip controller commands: tendon tensions or motor displacements
@@ -197,3 +199,30 @@ def _known_options(names) -> None:
         raise InputError(f"unknown solver option {unknown[0]!r} (the StaticOptions fields: {', '.join(known)})")
 
 
+def _shown(values: np.ndarray) -> str:
+    """A per-rod field as the scene gives it: one number, or the list of the rods' values."""
+    return repr(float(values.flat[0])) if values.size == 1 else repr(values.tolist())
+
+
+def check_model_support(robot: Robot, model: str, dynamic: bool = False) -> None:
+    """An InputError naming everything in ``robot`` (and, with ``dynamic``, the time stepping)
+    that the solver model ``model`` does not solve: the disk model ("disks") is static,
+    frictionless and without contact; the closed form ("constant_curvature") is static too, and
+    has no friction, contact, displacement control or held tip. Checked where a scene is read,
+    after the command line's --model, and where the solvers start."""
+    if model not in ("disks", "constant_curvature"):
+        return
+    found = [f"friction (tendons[{k}].friction = {_shown(t.friction)})" for k, t in enumerate(robot.tendons)
+             if np.any(t.friction > 0)]
+    if robot.obstacles:
+        found.append(f"obstacles ({len(robot.obstacles)} [[obstacles]])")
+    if model == "constant_curvature":
+        found += [f"displacement control (tendons[{k}].control = \"displacement\")"
+                  for k, t in enumerate(robot.tendons) if t.control == "displacement"]
+        found += ["a held tip ([tip])"] if robot.tip_constraint is not None else []
+    if dynamic:
+        found.append("dynamics (time stepping: simulate, control, search, gain-grid)")
+    if found:
+        static = "static, frictionless and without contact" if model == "disks" else "a static closed form"
+        raise InputError(f"solver model = \"{model}\" ({static}) does not support {'; '.join(found)}: use model = "
+                         "\"coupled\" or \"point\"")

@@ -20,6 +20,8 @@ from tdcr_warp.model.world import Obstacle, TipConstraint
 __all__ = ["InputError", "Obstacle", "PointForce", "Robot", "Tendon", "TipConstraint", "check_command", "check_displacements",
            "check_slip", "check_tensions", "real_array", "require_memory", "route_table"]
 
+MAX_DISKS = 100_000  # spacer disks of a robot: each is a grid node, and StaticOptions.nodes <= 100000
+
 
 def _batch(fields: dict[str, np.ndarray]) -> int:
     sizes = {k: v.shape[0] for k, v in fields.items() if v.shape[0] > 1}
@@ -410,11 +412,14 @@ def _set_disk_fields(robot: Robot) -> None:
         ends = [float(robot.length.max())] + [float(x) for t in robot.tendons if t.length is not None
                                               for x in np.unique(t.length)]
         ends = np.unique(ends)
+        if d * len(ends) > MAX_DISKS:
+            raise InputError(f"disks = {d!r} per section in {len(ends)} section(s) is more than {MAX_DISKS:,} disks "
+                             "(each disk is a node of the grid, and solver nodes <= 100000)")
         starts = np.concatenate([[0.0], ends[:-1]])
         d = np.concatenate([np.linspace(a, b, d + 1)[1:] for a, b in zip(starts, ends)])
     arr = real_array(d, "disks").reshape(-1) if np.ndim(d) <= 1 else None
-    if arr is None:
-        raise InputError(f"disks: expected a list of arc lengths, got shape {np.shape(d)}")
+    if arr is None or arr.size > MAX_DISKS:
+        raise InputError(f"disks: expected a list of at most {MAX_DISKS:,} arc lengths, got shape {np.shape(d)}")
     if not np.isfinite(arr).all() or (arr <= 0).any() or (arr > robot.length.min() * (1 + 1e-12)).any():
         raise InputError(f"disks: every arc length must be in (0, {float(robot.length.min())!r}] m, got {arr.tolist()}")
     if (np.diff(arr) <= 0).any():

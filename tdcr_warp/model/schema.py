@@ -18,7 +18,8 @@ from __future__ import annotations
 import sys
 from dataclasses import dataclass
 
-__all__ = ["REQUIRED", "SCHEMA", "TOP_TABLES", "Key", "Table", "location", "markdown"]
+__all__ = ["MAX_ROWS", "REQUIRED", "SCHEMA", "TOP_TABLES", "Key", "Table", "location", "markdown", "out_of_bounds",
+           "span"]
 
 TYPES = ("number", "numbers", "rows", "integer", "string", "bool", "strings", "table", "tables")
 
@@ -36,8 +37,10 @@ class Key:
     """One key of a table. default: the value when absent (None: not set, REQUIRED: must be
     given); default_text: the default in words where a reader computes it; allowed: the only
     values; when (key, values): the key is only for a table whose ``key`` is one of ``values``
-    (and, if REQUIRED, needed there); checked_by: what checks the value (None: the scene reader,
-    by ``type`` and ``allowed``)."""
+    (and, if REQUIRED, needed there); bounds (least, most): an integer key's range (most None:
+    no upper bound; every integer key has one); checked_by: what checks the value (None: the
+    scene reader, by ``type``, ``allowed`` and ``bounds``; else that checker, to the same
+    bounds)."""
 
     name: str
     type: str
@@ -49,10 +52,24 @@ class Key:
     allowed: tuple = ()
     when: tuple | None = None
     checked_by: str | None = None
+    bounds: tuple | None = None
 
     def __post_init__(self):
         if self.type not in TYPES:
             raise ValueError(f"schema key {self.name!r}: type must be one of {TYPES}, got {self.type!r}")
+        if (self.type == "integer") != (self.bounds is not None):
+            raise ValueError(f"schema key {self.name!r}: an integer key has bounds (least, most), no other key")
+
+
+def span(bounds: tuple) -> str:
+    """An integer key's bounds in words: "in [1, 100]", ">= 0"."""
+    least, most = bounds
+    return f">= {least}" if most is None else f"in [{least}, {most}]"
+
+
+def out_of_bounds(value: int, bounds: tuple) -> bool:
+    least, most = bounds
+    return value < least or (most is not None and value > most)
 
 
 @dataclass(frozen=True)
@@ -92,6 +109,7 @@ def location(name: str, index: int | None = None) -> str:
     return f"[{parent}].{child}" if parent else f"[{name}]"
 
 
+MAX_ROWS = 10**9  # rows of one sweep (a bound on typing errors: 1e9 rods are days of work)
 PER_ROD = "() or (B,)"
 VECTOR = "(3,) or (B, 3)"
 ROWS = "(K,) or (B, K)"
@@ -189,13 +207,14 @@ _TABLES = (
         Key("steps", "tables", "-", "a tension schedule for dynamics: [[actuation.steps]]"),
     )),
     Table("actuation.steps", "From step `start` on (until the next entry), these tensions.", array=True, keys=(
-        Key("start", "integer", "-", "first step (1-based, increasing, <= [dynamics].steps)", "", REQUIRED),
+        Key("start", "integer", "-", "first step (1-based, increasing, <= [dynamics].steps)", "", REQUIRED,
+            bounds=(1, None)),
         Key("tensions", "rows", "N", "tendon tensions from that step on", ROWS, REQUIRED),
     )),
     Table("solver", "The static solver (StaticOptions; a preset first, the other keys override it).", keys=(
         Key("preset", "string", "-", "named settings", default=None, allowed=("fast", "balanced", "accurate")),
-        Key("nodes", "integer", "-", "integration intervals N along s (shapes have N + 1 nodes), in [1, 100000]",
-            default=50, checked_by="StaticOptions"),
+        Key("nodes", "integer", "-", "integration intervals N along s (shapes have N + 1 nodes)",
+            default=50, checked_by="StaticOptions", bounds=(1, 100_000)),
         Key("integrator", "string", "-", "the ODE integrator", default="rk4", allowed=("rk4", "midpoint", "euler"),
             checked_by="StaticOptions"),
         Key("model", "string", "-", "tendon loads: distributed, at the terminations only, at spacer disks, or "
@@ -205,14 +224,14 @@ _TABLES = (
             allowed=("float64", "float32"), checked_by="StaticOptions"),
         Key("tol", "number", "m", "Newton stops below this tip-like residual L |r|", default=None,
             default_text="1e-10 (float64), 1e-6 (float32)", checked_by="StaticOptions"),
-        Key("max_iter", "integer", "-", "Newton iterations per rod, in [1, 10000]", default=50,
-            checked_by="StaticOptions"),
+        Key("max_iter", "integer", "-", "Newton iterations per rod", default=50,
+            checked_by="StaticOptions", bounds=(1, 10_000)),
         Key("max_step", "number", "-", "bound on a Newton step in scaled unknowns", default=10.0,
             checked_by="StaticOptions"),
         Key("jacobian", "string", "-", "finite differences once then rank-one updates, or at every iterate",
             default="broyden", allowed=("broyden", "newton"), checked_by="StaticOptions"),
-        Key("continuation", "integer", "-", "homotopy steps for hard rods (0: off), in [0, 10000]", default=8,
-            checked_by="StaticOptions"),
+        Key("continuation", "integer", "-", "homotopy steps for hard rods (0: off)", default=8,
+            checked_by="StaticOptions", bounds=(0, 10_000)),
         Key("rod", "string", "-", "with shear and extension, or inextensible and unshearable",
             default="cosserat", allowed=("cosserat", "kirchhoff"), checked_by="StaticOptions"),
         Key("specialize", "bool", "-", "compile out the physics the batch does not contain", default=True,
@@ -220,7 +239,7 @@ _TABLES = (
         Key("error_estimate", "bool", "-", "also solve with N/2 nodes and report a tip error estimate [m]",
             default=False, checked_by="StaticOptions"),
         Key("threads", "integer", "-", "CPU threads", default=None, default_text="all cores",
-            checked_by="StaticOptions"),
+            checked_by="StaticOptions", bounds=(1, 10**9)),
         Key("driver", "string", "-", "one launch per solve, or one per Newton iteration", default=None,
             default_text="the device's", allowed=("fused", "probes"), checked_by="StaticOptions"),
         Key("kink_loads", "bool", "-", "point loads where a tendon kinks (exact global balance)", default=True,
@@ -234,11 +253,11 @@ _TABLES = (
             checked_by="StaticOptions"),
         Key("contact_tolerance", "number", "-", "the penetration of a rigid obstacle allowed, a fraction of the "
             "rod's radius", default=0.01, checked_by="StaticOptions"),
-        Key("contact_steps", "integer", "-", "the most rounds of stiffening rigid obstacles, in [0, 100]", default=8,
-            checked_by="StaticOptions"),
+        Key("contact_steps", "integer", "-", "the most rounds of stiffening rigid obstacles", default=8,
+            checked_by="StaticOptions", bounds=(0, 100)),
         Key("segments", "integer", "-", "multiple shooting: every rod in this many segments (at most nodes), 1: "
             "never", default=None, default_text="only the rods single shooting cannot resolve, in as many as they "
-            "need", checked_by="StaticOptions"),
+            "need", checked_by="StaticOptions", bounds=(1, 10**9)),
         Key("energy_tolerance", "number", "-", "dynamics: flag a step of unforced motion that gains mechanical energy "
             "beyond this fraction of the rod's kinetic plus elastic energy (0: off)", default=0.01,
             checked_by="StaticOptions"),
@@ -246,11 +265,12 @@ _TABLES = (
     Table("dynamics", "Time stepping (`tdcr-warp simulate`, `control`); an empty table is none.", keys=(
         Key("dt", "number", "s", "time step", "", REQUIRED),
         Key("alpha", "number", "-", "BDF-alpha parameter of the implicit time discretisation", "", 0.0),
-        Key("steps", "integer", "-", "time steps (>= 1)", "", REQUIRED),
+        Key("steps", "integer", "-", "time steps", "", REQUIRED, bounds=(1, None)),
         Key("damping_shear", "numbers", "N s", "Bse diagonal", VECTOR, default_text="[0, 0, 0]"),
         Key("damping_bending", "numbers", "N m^2 s", "Bbt diagonal", VECTOR, default_text="[0, 0, 0]"),
         Key("drag", "numbers", "kg/m^2", "air drag C diagonal", VECTOR, default_text="[0, 0, 0]"),
-        Key("shapes_every", "integer", "-", "store full shapes every k steps (0: the tips only)", "", 0),
+        Key("shapes_every", "integer", "-", "store full shapes every k steps (0: the tips only), at most steps",
+            "", 0, bounds=(0, None)),
     )),
     Table("control", "The tip controller (`tdcr-warp control`; needs [dynamics]); exactly one of target, "
           "target_tensions, target_displacements or path.", keys=(
@@ -267,7 +287,8 @@ _TABLES = (
         Key("epsilon", "numbers", "m/s^2", "reaching gain", PER_ROD, 0.005),
         Key("phi", "numbers", "m/s", "boundary layer width", PER_ROD, 1e-3),
         Key("tension_max", "numbers", "N", "tension bound", "() or " + ROWS, 8.0),
-        Key("model_every", "integer", "-", "steps between re-linearisations of the statics", "", 5),
+        Key("model_every", "integer", "-", "steps between re-linearisations of the statics", "", 5,
+            bounds=(1, None)),
         Key("gain_i", "numbers", "1/s^2", "integral gain (method integral)", "() or (3,) or (B, 3)",
             default_text="gain_c^2 / 4"),
         Key("command", "string", "-", "what the controller commands", default="tension",
@@ -298,7 +319,7 @@ _TABLES = (
         Key("tension_max", "numbers", "N", "tension bound", "() or " + ROWS, default_text="inf"),
         DISPLACEMENT_RANGE,
         Key("tol", "numbers", "m", "position error to reach (and L times the orientation error)", "", 1e-9),
-        Key("max_iter", "integer", "-", "iterations", "", 40),
+        Key("max_iter", "integer", "-", "iterations", "", 40, bounds=(1, 10_000)),
     )),
     Table("hardware", "A robot on the bench (`tdcr-warp fit`, `predict`): measurement columns and frames.", keys=(
         Key("servo_columns", "strings", "-", "the measurement CSV's column of each tendon, in tendon order",
@@ -309,7 +330,7 @@ _TABLES = (
     )),
     Table("display", "How shapes are drawn (`tdcr-warp draw`, `view`).", parser="tdcr_warp.io.drawing.display_options",
           keys=(
-        Key("disks", "integer", "-", "spacer disks drawn, in [0, 1000]", "", 20, checked_by="display_options"),
+        Key("disks", "integer", "-", "spacer disks drawn", "", 20, checked_by="display_options", bounds=(0, 1000)),
         Key("disk_radius", "number", "m", "drawn disk radius", "", default_text="from the tendon routes",
             checked_by="display_options"),
     )),
@@ -317,18 +338,21 @@ _TABLES = (
         Key("ranges", "table", "-", "gain = [lo, hi], 0 < lo < hi (log space); gains control.gain_c, gain_k, "
             "gain_i (whole, or one component [0-2]), control.epsilon, control.phi", "", REQUIRED,
             checked_by="search_options"),
-        Key("budget", "integer", "-", "closed loops to spend (>= 1)", "", REQUIRED, checked_by="search_options"),
-        Key("population", "integer", "-", "CMA-ES population (>= 4)", "", default_text="4 + floor(3 ln d)",
-            checked_by="search_options"),
-        Key("seed", "integer", "-", "random seed, in [0, 2^32)", "", 0, checked_by="search_options"),
+        Key("budget", "integer", "-", "closed loops to spend", "", REQUIRED, checked_by="search_options",
+            bounds=(1, None)),
+        Key("population", "integer", "-", "CMA-ES population", "", default_text="4 + floor(3 ln d)",
+            checked_by="search_options", bounds=(4, None)),
+        Key("seed", "integer", "-", "random seed", "", 0, checked_by="search_options", bounds=(0, 2**32 - 1)),
         Key("sigma", "number", "-", "initial step as a fraction of each log range, in (0, 1]", "", 0.3,
             checked_by="search_options"),
     )),
     Table("sweep", "A sweep over scene fields (`tdcr-warp sweep`, `workspace`, `montecarlo`).",
           parser="tdcr_warp.apps.sweep.SweepSpec", keys=(
-        Key("chunk", "integer", "-", "rods per chunk (memory bound)", "", 1024, checked_by="SweepSpec"),
-        Key("seed", "integer", "-", "seed of the random draws", "", 0, checked_by="SweepSpec"),
-        Key("samples", "integer", "-", "random samples (without a grid)", "", checked_by="SweepSpec"),
+        Key("chunk", "integer", "-", "rods per chunk (memory bound)", "", 1024, checked_by="SweepSpec",
+            bounds=(1, MAX_ROWS)),
+        Key("seed", "integer", "-", "seed of the random draws", "", 0, checked_by="SweepSpec", bounds=(0, None)),
+        Key("samples", "integer", "-", "random samples (without a grid)", "", checked_by="SweepSpec",
+            bounds=(1, MAX_ROWS)),
         Key("grid", "table", "-", "field = [start, stop, count]: a cartesian product, first field slowest", "",
             checked_by="SweepSpec"),
         Key("max_total_tension", "number", "N", "drop rows whose tensions sum above it", "",
@@ -340,7 +364,8 @@ _TABLES = (
             checked_by="SweepSpec"),
         Key("distribution", "string", "-", "the distribution", "", REQUIRED,
             allowed=("normal", "uniform", "lognormal"), checked_by="SweepSpec"),
-        Key("params", "numbers", "-", "normal [mean, std], uniform [low, high], lognormal [mu, sigma] of the log",
+        Key("params", "numbers", "-", "finite: normal [mean, std >= 0], uniform [low, high] with low <= high, lognormal "
+            "[mu, sigma >= 0] of the log",
             "(2,)", REQUIRED, checked_by="SweepSpec"),
     )),
 )
@@ -375,6 +400,8 @@ def _meaning(key: Key) -> str:
     text = key.meaning
     if key.allowed:
         text += "; one of " + ", ".join(f"`{_toml(a)}`" for a in key.allowed)
+    if key.bounds:
+        text += f"; an integer {span(key.bounds)}"
     if key.when:
         sel, values = key.when
         text += f"; only with {sel} = " + " or ".join(f'"{v}"' for v in values)

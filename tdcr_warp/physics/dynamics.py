@@ -26,7 +26,7 @@ from tdcr_warp.kernels import layout
 from tdcr_warp.kernels.energy import make_energy_kernels
 from tdcr_warp.kernels.history import make_history_kernels
 from tdcr_warp.kernels.segments import segmentable
-from tdcr_warp.model.options import StaticOptions
+from tdcr_warp.model.options import StaticOptions, check_model_support
 from tdcr_warp.model.robot import InputError, Robot, check_command, check_tensions, real_array, require_memory
 from tdcr_warp.physics.contact import chunk_contacts, penetration
 from tdcr_warp.physics.segments import SWITCH_REACH, Segments, segments_needed, single_shooting_warning
@@ -267,9 +267,7 @@ class Simulator(_Readings):
         self.B = tau.shape[0]
         self.dev = wp.get_device(device)
         self._command = _Commands(robot, self.opts, self.dev, self.B, np.zeros_like(tau) if q is None else q)
-        if self.opts.model in ("constant_curvature", "disks"):
-            raise InputError(f"dynamics needs solver model 'coupled' or 'point', got {self.opts.model!r} (the disk "
-                             "model is static for now)")
+        check_model_support(robot, self.opts.model, dynamic=True)
         static, self.tables, x0 = _static_start(robot, tau, displacements, initial, self.opts, self.dev)
         layer = layer_warning(robot, self.tables.grid, self.dt, self.alpha)
         if layer:

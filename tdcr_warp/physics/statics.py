@@ -26,7 +26,7 @@ from tdcr_warp.core.parallel import parallel, split
 from tdcr_warp.core.solver import Shooting, first_jacobian
 from tdcr_warp.kernels import layout
 from tdcr_warp.kernels.segments import segmentable as kernel_segmentable
-from tdcr_warp.model.options import StaticOptions, describe_status
+from tdcr_warp.model.options import StaticOptions, check_model_support, describe_status
 from tdcr_warp.model.robot import InputError, Robot, check_command, check_slip, real_array, require_memory
 from tdcr_warp.physics.assessment import Assessor
 from tdcr_warp.physics.contact import Contact, chunk_contacts, penetration
@@ -752,9 +752,7 @@ def solve_static(robot: Robot, tensions=None, *, displacements=None, slip=None, 
     B = tau.shape[0]
     sg = None if slip is None else check_slip(robot, slip, B)
     if opts.model == "constant_curvature":
-        if robot.displaced or robot.has_friction or robot.obstacles or robot.tip_constraint is not None:
-            raise InputError("solver model 'constant_curvature' has no displacement control, friction, obstacles "
-                             "or constrained tip: use model 'coupled' or 'point'")
+        check_model_support(robot, opts.model)
         if opts.sensitivities or opts.stability == "stable" or parameters:
             raise InputError("solver model 'constant_curvature' has no sensitivities or stable-branch search: use "
                              "model 'coupled' or 'point'")
