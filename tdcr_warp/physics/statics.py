@@ -393,11 +393,8 @@ class StaticProblem:
         if job.J0 is not None:
             sh.host(sh.newton.J).put(job.J0[lo:hi])
         sh.solve(x0, fresh_jacobian=job.J0 is None, **newton)
-        if self.opts.continuation and not job.warm:
-            finite, large, steps = continuation_steps(x0, self.opts.continuation)
-            redo = finite & (~sh.converged() | large)
-            if redo.any():
-                load_continuation(sh, _loads(tables, job, lo, hi), x0, redo, steps, newton)
+        if self.opts.continuation:
+            _continue(self, sh, job, lo, hi, x0)
         if job.free is not None and not sh.converged().all():
             _hold(sh, tables, lo, hi, x0, newton)
         segments = _contact_and_split(self, sh, lo, hi, contact, x0, newton, None if job.warm else _loads(tables, job, lo, hi))
@@ -445,6 +442,20 @@ class _Job:
     stability: str
     stiffness: np.ndarray | None = None
     free: np.ndarray | None = None
+
+
+def _continue(problem: StaticProblem, sh: Shooting, job: _Job, lo: int, hi: int, x0: np.ndarray) -> None:
+    """A cold solve's rods of chunk lo:hi that failed from the straight-rod start ``x0``, or whose
+    load is large (``continuation_steps``), solved again along a load path. The disk model's
+    start is the coupled model's answer (warm): its rods that fail from there take the path from
+    the straight rod too (two-section robots at a few N, which converge from half their load)."""
+    if job.warm and problem.opts.model != "disks":
+        return
+    straight = problem.start(job.tau, job.avail)[lo:hi] if job.warm else x0
+    finite, large, steps = continuation_steps(straight, problem.opts.continuation)
+    redo = finite & (~sh.converged() | (large & (not job.warm)))
+    if redo.any():
+        load_continuation(sh, _loads(problem.tables, job, lo, hi), straight, redo, steps, job.newton)
 
 
 def _loads(tables: Tables, job: _Job, lo: int, hi: int) -> tuple:
