@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from tdcr_warp.cli.common import (
+    CsvWriter,
     add_command,
     add_log_arguments,
     add_solver_arguments,
@@ -86,12 +87,10 @@ def run(args) -> int:
 
 def write_predictions(path: Path, meas, pred: dict) -> None:
     """predictions.csv: one row per input row, predicted and measured tip [mm], error, flags."""
-    import csv
-
     K = pred["slack"].shape[1] if pred["slack"] is not None else 0
     def write(tmp):
         with open(tmp, "w", newline="") as f:
-            w = csv.writer(f)
+            w = CsvWriter(f)  # labels and file names neutralised (csv_cell)
             w.writerow(["row", "source", "pattern_label", "pred_x_mm", "pred_y_mm", "pred_z_mm", "meas_x_mm",
                         "meas_y_mm", "meas_z_mm", "error_mm", "converged", "unstable", "retried"]
                        + [f"slack_{k}" for k in range(K)])
