@@ -92,6 +92,22 @@ def test_an_interrupted_run_leaves_nothing_of_its_own(tmp_path):
     assert [p.name for p in out.iterdir()] == ["results.json"]
 
 
+def test_completion_files_go_first_and_come_back_last(tmp_path, monkeypatch):
+    """fit's two completion files: removed on entry, moved in after the other files, fit.json last."""
+    names = ("fit.json", "fitted.toml", "predictions.csv")
+    for name in names:
+        (tmp_path / name).write_text("old")
+    moved = []
+    replace = os.replace
+    monkeypatch.setattr(os, "replace", lambda a, b: (moved.append(Path(b).name), replace(a, b)))
+    with OutputRun(args(out=tmp_path, command="fit"), Path("unused"), names, complete=2) as run:
+        assert sorted(p.name for p in tmp_path.iterdir() if not p.name.startswith(".")) == ["predictions.csv"]
+        staged(run, ["fit.json", "predictions.csv", "fitted.toml"])
+        run.commit()
+    assert moved == ["predictions.csv", "fitted.toml", "fit.json"]
+    assert all((tmp_path / name).read_text() == "new" for name in names)
+
+
 def test_commit_refuses_files_the_command_does_not_declare(tmp_path):
     with OutputRun(args(out=tmp_path), Path("unused"), NAMES) as run:
         staged(run, ["results.json", "undocumented.txt"])

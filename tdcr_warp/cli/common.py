@@ -86,30 +86,21 @@ def _make_folder(out: Path) -> Path:
     return out
 
 
-def out_dir(args, default: Path, *complete: str) -> Path:
-    """The output directory (output_folder, created), without the files ``complete`` of an
-    earlier run (the command writes them last: their presence means a run is complete, so an
-    interrupted run leaves none beside its partial outputs). Neither locked nor staged (fit and
-    predict); the other commands write through :class:`OutputRun`."""
-    out = _make_folder(output_folder(args, default))
-    for name in complete:
-        (out / name).unlink(missing_ok=True)
-    return out
-
-
 class OutputRun:
     """A command's run into its output folder, a context manager (docs/outputs.md, "Output
-    safety"). On entry the folder (output_folder) is created and locked for the run
-    (tdcr_warp.io.files.FolderLock: a second run or sweep into it is refused), the staging
-    folders a killed run left are removed, and so is the completion file ``names[0]`` an earlier
-    run left. The command writes its files to ``run / name``, in a private staging folder inside
-    the output folder; :meth:`commit` moves them in, the completion file last, and removes the
-    files of ``names`` (the command's outputs) that this run did not write, so the folder never
-    holds two runs' files beside one completion file. Leaving without commit (an error, Ctrl-C)
-    discards the staged files. ``str(run)`` is the output folder, printable."""
+    safety"). ``names``: the command's output files, its ``complete`` completion files first
+    (the main one, ``names[0]``, first of all). On entry the folder (output_folder) is created
+    and locked for the run (tdcr_warp.io.files.FolderLock: a second run or sweep into it is
+    refused), the staging folders a killed run left are removed, and so are the completion files
+    an earlier run left. The command writes its files to ``run / name``, in a private staging
+    folder inside the output folder; :meth:`commit` moves them in, the completion files last
+    (``names[0]`` the very last), and removes the files of ``names`` that this run did not write,
+    so the folder never holds two runs' files beside a completion file. Leaving without commit
+    (an error, Ctrl-C) discards the staged files. ``str(run)`` is the output folder, printable."""
 
-    def __init__(self, args, default: Path, names: tuple[str, ...]):
+    def __init__(self, args, default: Path, names: tuple[str, ...], complete: int = 1):
         self.path, self.names, self.command = output_folder(args, default), names, args.command
+        self.complete = names[:complete]
         self.stage: Path | None = None
         self._lock = None
 
@@ -121,7 +112,8 @@ class OutputRun:
                     shutil.rmtree(old)
                 else:
                     old.unlink()
-            (self.path / self.names[0]).unlink(missing_ok=True)
+            for name in self.complete:
+                (self.path / name).unlink(missing_ok=True)
             self.stage = Path(tempfile.mkdtemp(prefix=STAGE, dir=self.path))
         except BaseException:
             self._lock.__exit__()
@@ -143,7 +135,8 @@ class OutputRun:
             raise RuntimeError(f"{self.command} staged {staged}: not its outputs {self.names}, completion file first")
         for name in set(self.names) - set(staged):
             (self.path / name).unlink(missing_ok=True)
-        for name in [n for n in staged if n != self.names[0]] + [self.names[0]]:
+        last = [n for n in reversed(self.complete) if n in staged]
+        for name in [n for n in staged if n not in last] + last:
             os.replace(self.stage / name, self.path / name)
         self.stage.rmdir()
         self.stage = None
