@@ -164,9 +164,15 @@ def test_a_linked_results_folder_is_not_written_through(scene, tmp_path, capsys)
     (out / "results").symlink_to(elsewhere)
     assert main(["montecarlo", str(scene), "--out", str(out), "--quiet", "--resume"]) == 2
     assert f"{out / 'results'} is a symbolic link" in capsys.readouterr().err
-    assert main(["montecarlo", str(scene), "--out", str(out), "--quiet", "--overwrite"]) == 0
-    assert not (out / "results").is_symlink() and len(list((out / "results").iterdir())) == 3
-    assert [p.name for p in elsewhere.iterdir()] == ["mine.txt"]
+    assert main(["montecarlo", str(scene), "--out", str(out), "--quiet", "--overwrite", "--max-chunks", "1"]) == 1
+    assert not (out / "results").is_symlink()
+    (out / "results" / "part-00002.parquet").symlink_to(elsewhere / "mine.txt")  # a link inside: refused too
+    assert main(["montecarlo", str(scene), "--out", str(out), "--quiet", "--resume"]) == 2
+    assert f"{out / 'results' / 'part-00002.parquet'} is a symbolic link" in capsys.readouterr().err
+    (out / "results" / "part-00002.parquet").unlink()
+    assert main(["montecarlo", str(scene), "--out", str(out), "--quiet", "--resume"]) == 0
+    assert len(list((out / "results").iterdir())) == 3
+    assert [p.name for p in elsewhere.iterdir()] == ["mine.txt"] and (elsewhere / "mine.txt").read_text() == "keep me"
 
 
 def test_another_sweep_in_the_folder_needs_overwrite(scene, tmp_path, capsys):

@@ -24,6 +24,7 @@ import contextlib
 import fcntl
 import hashlib
 import json
+import os
 import shutil
 from pathlib import Path
 
@@ -83,12 +84,16 @@ def clear_outputs(out: Path, everything: bool) -> None:
 
 
 def check_no_links(out: Path) -> None:
-    """The folders a sweep writes into (its parts, its arrays) are not symbolic links: writing
-    through one would put the sweep's files elsewhere. An InputError names the link."""
+    """Neither the folders a sweep writes into (its parts, its arrays) nor anything in them is a
+    symbolic link: Zarr and the parts would write through a linked folder, elsewhere. An
+    InputError names the first link found."""
     for name in (TABLE, ARRAYS):
-        if (out / name).is_symlink():
-            raise InputError(f"{out / name} is a symbolic link: a sweep writes no folder through a link; "
-                             "remove it, or --overwrite replaces it")
+        top = out / name
+        found = [top] if top.is_symlink() else (Path(d) / n for d, dirs, files in os.walk(top) for n in dirs + files)
+        link = next((p for p in found if p.is_symlink()), None)
+        if link is not None:
+            raise InputError(f"{link} is a symbolic link: a sweep writes nothing through a link; remove it, or "
+                             "--overwrite replaces the sweep")
 
 
 @contextlib.contextmanager
