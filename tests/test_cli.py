@@ -190,6 +190,24 @@ def test_bad_flags_and_out_dir(tmp_path, capsys):
     assert err.startswith("tdcr-warp: error: --out") and "Traceback" not in err, err
 
 
+def test_paths_reach_the_terminal_escaped(tmp_path, monkeypatch, capsys):
+    """A scene or folder named with escape sequences is shown escaped, in errors and in what
+    the command wrote: no control character reaches the terminal."""
+    monkeypatch.chdir(tmp_path)
+    scene = write(tmp_path, BASE, "\x1b[2J\x1b]0;pwned\x07.toml")
+    assert main(["static", scene.name, "--no-figures"]) == 2  # no default folder from that name
+    assert main(["static", "nope\x1b[31m.toml"]) == 2
+    out = "o\x1b[2Jut"
+    assert main(["static", scene.name, "--no-figures", "--out", out]) == 0
+    printed = capsys.readouterr()
+    assert not any(c in printed.out + printed.err for c in "\x1b\x07")
+    err = printed.err.splitlines()
+    assert err[0].startswith("tdcr-warp: error: \\x1b[2J\\x1b]0;pwned\\x07.toml: the scene file's name gives no safe")
+    assert err[1].startswith("tdcr-warp: error: cannot read scene") and "nope\\x1b[31m.toml" in err[1]
+    assert "wrote o\\x1b[2Jut/results.json, shapes.npz" in printed.out
+    assert (tmp_path / out / "results.json").exists()
+
+
 @pytest.mark.parametrize("argv", [["simulate", "--steps", "0"], ["control", "--steps", "-3"],
                                   ["static", "--nodes", "0"], ["fit", "data.csv", "--max-iter", "0"]])
 def test_counts_below_one_exit_2_naming_the_option(tmp_path, capsys, argv):

@@ -16,7 +16,7 @@ import pytest
 
 from tdcr_warp.apps.sweep import SweepSpec
 from tdcr_warp.cli import main
-from tdcr_warp.io.files import SCENE_LIMIT
+from tdcr_warp.io.inputs import SCENE_LIMIT
 from tdcr_warp.io.scene import scene_from_dict
 from tdcr_warp.model.checks import InputError, is_number
 from tdcr_warp.model.schema import SCHEMA

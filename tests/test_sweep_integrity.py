@@ -2,6 +2,7 @@
 streaming summaries that equal the all-at-once ones, and outputs that pandas and xarray open."""
 
 import json
+import os
 import shutil
 import tomllib
 
@@ -13,8 +14,9 @@ import tdcr_warp as tw
 from tdcr_warp.apps.jobs import ERROR_EDGES, Histogram, SweepJob, convex_hull_2d, pareto_front, static_job
 from tdcr_warp.apps.sweep import Samples, SweepSpec, make_samples, open_sweep, run_sweep
 from tdcr_warp.cli import main
+from tdcr_warp.io.files import FolderLock
 from tdcr_warp.io.scene import scene_from_dict
-from tdcr_warp.io.store import ChunkError, SweepLock
+from tdcr_warp.io.store import ChunkError
 from tdcr_warp.model.robot import InputError
 
 
@@ -116,9 +118,9 @@ def test_a_bad_chunk_found_by_the_summary_is_exit_2(scene, tmp_path, capsys, mon
 def test_a_second_writer_is_refused(scene, tmp_path, capsys):
     out = tmp_path / "o"
     out.mkdir()
-    with SweepLock(out):  # another sweep writing this folder (a separate open file: flock excludes it)
+    with FolderLock(out, "sweep"):  # another sweep writing this folder (a separate open file: flock excludes it)
         assert main(["montecarlo", str(scene), "--out", str(out), "--quiet"]) == 2
-    assert "is being written by another sweep" in capsys.readouterr().err
+    assert f"{out} is being written by another tdcr-warp sweep (pid {os.getpid()} on" in capsys.readouterr().err
     assert not (out / "results").exists()
 
 
@@ -129,6 +131,48 @@ def test_a_stale_lock_is_taken_over(scene, tmp_path, capsys):
     assert main(["montecarlo", str(scene), "--out", str(out), "--quiet"]) == 0
     err = capsys.readouterr().err
     assert "pid 999999999" in err and "taken over" in err
+
+
+def test_a_linked_lock_is_refused_and_its_target_kept(scene, tmp_path, capsys):
+    """A .lock that is a symbolic link (or a hard link) to another file: exit 2 naming it, and the
+    file it points to is neither truncated nor written."""
+    precious = tmp_path / "precious.txt"
+    precious.write_text("keep me\n")
+    out = tmp_path / "o"
+    out.mkdir()
+    (out / ".lock").symlink_to(precious)
+    assert main(["montecarlo", str(scene), "--out", str(out), "--quiet"]) == 2
+    assert capsys.readouterr().err == (f"tdcr-warp: error: {out / '.lock'}: the lock file is a symbolic link: "
+                                       "refusing to follow it; remove it\n")
+    (out / ".lock").unlink()
+    os.link(precious, out / ".lock")
+    assert main(["montecarlo", str(scene), "--out", str(out), "--quiet"]) == 2
+    assert "the lock file is a file with 2 hard links: refusing to write it" in capsys.readouterr().err
+    assert precious.read_text() == "keep me\n"
+    assert sorted(p.name for p in out.iterdir()) == [".lock"]
+
+
+def test_a_linked_results_folder_is_not_written_through(scene, tmp_path, capsys):
+    """On --resume a results/ that is a symbolic link is refused; a new sweep removes the link
+    itself (not what it points to) and writes a folder of its own."""
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    (elsewhere / "mine.txt").write_text("keep me")
+    out = tmp_path / "o"
+    assert main(["montecarlo", str(scene), "--out", str(out), "--quiet", "--max-chunks", "1"]) == 1
+    shutil.rmtree(out / "results")
+    (out / "results").symlink_to(elsewhere)
+    assert main(["montecarlo", str(scene), "--out", str(out), "--quiet", "--resume"]) == 2
+    assert f"{out / 'results'} is a symbolic link" in capsys.readouterr().err
+    assert main(["montecarlo", str(scene), "--out", str(out), "--quiet", "--overwrite", "--max-chunks", "1"]) == 1
+    assert not (out / "results").is_symlink()
+    (out / "results" / "part-00002.parquet").symlink_to(elsewhere / "mine.txt")  # a link inside: refused too
+    assert main(["montecarlo", str(scene), "--out", str(out), "--quiet", "--resume"]) == 2
+    assert f"{out / 'results' / 'part-00002.parquet'} is a symbolic link" in capsys.readouterr().err
+    (out / "results" / "part-00002.parquet").unlink()
+    assert main(["montecarlo", str(scene), "--out", str(out), "--quiet", "--resume"]) == 0
+    assert len(list((out / "results").iterdir())) == 3
+    assert [p.name for p in elsewhere.iterdir()] == ["mine.txt"] and (elsewhere / "mine.txt").read_text() == "keep me"
 
 
 def test_another_sweep_in_the_folder_needs_overwrite(scene, tmp_path, capsys):

@@ -28,6 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
+from tdcr_warp.io.inputs import TABLE_LIMIT, read_limited
 from tdcr_warp.io.scene import Scene, scene_from_dict
 from tdcr_warp.model.robot import InputError
 from tdcr_warp.physics.statics import StaticSolution, reference_lengths, solve_static
@@ -98,11 +99,10 @@ def read_measurements(paths, servo_columns: list[str]) -> Measurements:
 
 
 def _read_text(path: Path) -> str:
-    """The text of a keypoint CSV; an InputError if it cannot be read, is not UTF-8, has a NUL byte."""
+    """The text of a keypoint CSV; an InputError if it cannot be read, is not a regular file of at
+    most TABLE_LIMIT bytes (tdcr_warp/io/inputs.py), is not UTF-8, has a NUL byte."""
     try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as e:
-        raise InputError(f"{path}: cannot read it: {e.strerror or e}") from None
+        text = read_limited(path, TABLE_LIMIT, f"{path}: cannot read it").decode("utf-8")
     except UnicodeDecodeError as e:
         raise InputError(f"{path}: not a UTF-8 text file (byte 0x{e.object[e.start]:02x} at offset {e.start}); "
                          "expected a CSV of keypoints") from None

@@ -40,12 +40,13 @@ from pathlib import Path
 import numpy as np
 
 from tdcr_warp.apps.chunk import solve_chunk
+from tdcr_warp.io.files import FolderLock, printable
 from tdcr_warp.io.store import (
     FORMAT,
     TABLE,
     ChunkError,
     ChunkStore,
-    SweepLock,
+    check_no_links,
     clear_outputs,
     read_manifest,
     write_manifest,
@@ -318,7 +319,8 @@ def _prepare(out: Path, manifest: dict, resume: bool, overwrite: bool) -> None:
         clear_outputs(out, everything=overwrite or not same)
     else:
         clear_outputs(out, everything=True)
-    for tmp in (out / TABLE).glob(".part-*.tmp"):
+    check_no_links(out)
+    for tmp in (out / TABLE).glob(".part-*.tmp*"):
         tmp.unlink()
     write_manifest(out, manifest | {"state": "running"})
 
@@ -353,7 +355,7 @@ def _kept_chunks(store: ChunkStore) -> tuple[set, int]:
         try:
             part = store.read(c)
         except ChunkError as e:
-            print(f"tdcr-warp: chunk {c} rejected, recomputing it: {e}", file=sys.stderr)
+            print(f"tdcr-warp: chunk {c} rejected, recomputing it: {printable(e)}", file=sys.stderr)
             store.part(c).unlink()
             continue
         done.add(c)
@@ -395,10 +397,10 @@ def run_sweep(data: dict, job, out_dir, *, chunk: int | None = None, resume: boo
     store = ChunkStore(out, fp, M, size)
     manifest = {"format": FORMAT, "fingerprint": fp, "job": job_name, "rods": M, "chunk": size,
                 "chunks": store.n_chunks, "fields": samples.fields, **(meta or {})}
-    with SweepLock(out) as lock:
+    with FolderLock(out, job_name) as lock:
         if lock.stale and lock.stale.get("pid") != os.getpid():
-            print(f"tdcr-warp: {out}: the previous writer (pid {lock.stale.get('pid')}, started "
-                  f"{lock.stale.get('started')}) is gone; its lock is taken over", file=sys.stderr)
+            print(printable(f"tdcr-warp: {out}: the previous writer (pid {lock.stale.get('pid')}, started "
+                            f"{lock.stale.get('started')}) is gone; its lock is taken over"), file=sys.stderr)
         _prepare(out, manifest, resume, overwrite)
         done, failed = _kept_chunks(store)
         missing = [c for c in range(store.n_chunks) if c not in done]

@@ -9,6 +9,8 @@ the wiring of the layers below), the shared helpers in ``common`` and ``animatio
 Exit status: 0 every rod converged; 1 some rods failed (outputs written, reasons recorded);
 2 bad input (the message names the field and the value, no traceback); 130 interrupted (Ctrl-C:
 one line on stderr, and no completion file: results.json, metrics.json, ik.json, fit.json).
+Every message is printed with its control characters escaped (tdcr_warp.io.files.printable): a
+path or label cannot drive the terminal.
 """
 
 from __future__ import annotations
@@ -31,6 +33,7 @@ from tdcr_warp.cli import (
     warmup,
 )
 from tdcr_warp.core.progress import Progress
+from tdcr_warp.io.files import printable
 from tdcr_warp.model.robot import InputError
 
 # in the order of the help's list of commands
@@ -126,10 +129,10 @@ def main(argv=None) -> int:
         print("tdcr-warp: interrupted", file=sys.stderr)
         return 130
     except (InputError, OSError) as e:
-        print(f"tdcr-warp: error: {one_line(str(e))}", file=sys.stderr)
+        print(f"tdcr-warp: error: {printable(one_line(str(e)))}", file=sys.stderr)
         return 2
     except SweepError as e:
-        print(f"tdcr-warp: error: {e}", file=sys.stderr)
+        print(f"tdcr-warp: error: {printable(one_line(str(e)))}", file=sys.stderr)
         return 1
     finally:
         solver.set_compile_notice(notice)

@@ -4,8 +4,6 @@ as robot.gif (--animate) and robot.html (--html): shared by simulate and control
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
-
 import numpy as np
 
 from tdcr_warp.cli.common import positive_int, write_atomic
@@ -27,18 +25,28 @@ def check_shapes(args, spec) -> None:
         raise InputError("--html: the run stores no shapes: set [dynamics].shapes_every (e.g. 5)")
 
 
-def html_run(scene, run, grid: np.ndarray, out: Path) -> None:
-    """robot.html: the interactive viewer of a trajectory or closed-loop run from its stored shapes."""
+def drawings(args, scene, run, grid: np.ndarray, out) -> list[str]:
+    """robot.gif (--animate) and robot.html (--html) into ``out`` (a cli.common.OutputRun); what
+    was written, e.g. ``robot.gif (24 frames)``, for the lines the command prints once its files
+    are in place."""
+    return ([animate(scene, run, grid, out)] if args.animate else []) + ([html_run(scene, run, grid, out)]
+                                                                         if args.html else [])
+
+
+def html_run(scene, run, grid: np.ndarray, out) -> str:
+    """robot.html: the interactive viewer of a trajectory or closed-loop run from its stored
+    shapes; ``robot.html (n frames)``."""
     from tdcr_warp.io.viewer import write_run_viewer
 
     drawn = []
     write_atomic(out / "robot.html", lambda tmp: drawn.append(write_run_viewer(
         tmp, scene.robot, run, grid, scene.tensions, display=scene.display)))
-    print(f"wrote {out}/robot.html ({drawn[0]} frames)")
+    return f"robot.html ({drawn[0]} frames)"
 
 
-def animate(scene, run, grid: np.ndarray, out: Path) -> None:
-    """robot.gif of a trajectory or closed-loop run from its stored shapes (tdcr_warp.io.plotting)."""
+def animate(scene, run, grid: np.ndarray, out) -> str:
+    """robot.gif of a trajectory or closed-loop run from its stored shapes (tdcr_warp.io.plotting);
+    ``robot.gif (n frames)``."""
     from tdcr_warp.io.drawing import robot_geometry
     from tdcr_warp.io.plotting import MAX_ROBOTS_DRAWN, animate_robot
 
@@ -48,4 +56,4 @@ def animate(scene, run, grid: np.ndarray, out: Path) -> None:
     frames = [robot_geometry(scene.robot, run.positions[i, :n], run.rotations[i, :n], grid[:n], tau[step],
                              scene.display) for i, step in enumerate(run.shape_steps)]
     drawn = animate_robot(frames, run.time[run.shape_steps], out / "robot.gif")
-    print(f"wrote {out}/robot.gif ({drawn} frames)")
+    return f"robot.gif ({drawn} frames)"

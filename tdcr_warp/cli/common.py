@@ -1,19 +1,24 @@
-"""What every command shares: files written atomically, strict JSON, the output directory, the
-settings recorded beside the results, the solver overrides, the per-rod lines printed and the
-arguments common to the commands."""
+"""What every command shares: files written atomically, strict JSON and neutralised CSV, the
+output directory (locked, its files moved in as one set), the settings recorded beside the
+results, the solver overrides, the per-rod lines printed and the arguments common to the
+commands."""
 
 from __future__ import annotations
 
 import argparse
+import csv
 import json
 import math
 import os
+import shutil
 import tempfile
 from dataclasses import asdict, fields, replace
 from pathlib import Path
+from typing import Self
 
 import numpy as np
 
+from tdcr_warp.io.files import FolderLock, printable, write_atomic
 from tdcr_warp.kernels.variants import INTEGRATORS, MODELS
 from tdcr_warp.model.checks import is_number
 from tdcr_warp.model.options import check_model_support
@@ -24,18 +29,10 @@ from tdcr_warp.model.robot import InputError
 JSON_RODS = 100
 # The [solver] fields that the command line overrides (--nodes, --integrator, --model, --precision).
 OVERRIDES = ("nodes", "integrator", "model", "precision")
-
-
-def write_atomic(path: Path, write) -> None:
-    """Write through a temporary file in the same directory, then rename."""
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix="." + path.name, suffix=".tmp")
-    os.close(fd)
-    try:
-        write(tmp)
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.remove(tmp)
+# A run's files are written into a private folder DIR/.run-XXXXXXXX, moved into DIR at its end.
+STAGE = ".run-"
+# The first characters that make a spreadsheet read a CSV cell as a formula (OWASP: CSV injection).
+FORMULA_START = ("=", "+", "-", "@", "\t", "\r")
 
 
 def write_npz(path: Path, save) -> None:
@@ -69,18 +66,90 @@ def write_rod_table(path: Path, command: str, first: dict, arrays: dict) -> dict
     return {"rows": B, "columns": {k: "string" if isinstance(v, list) else str(v.dtype) for k, v in columns.items()}}
 
 
-def out_dir(args, default: Path, *complete: str) -> Path:
-    """The output directory (created), without the files ``complete`` of an earlier run (the
-    command writes them last: their presence means a run is complete, so an interrupted run
-    leaves none beside its partial outputs); an unusable one is an InputError naming --out."""
-    out = Path(args.out) if args.out else default
+def output_folder(args, default: Path) -> Path:
+    """--out, or else ``default``: out/NAME with NAME made from the scene file's name, which must
+    be one harmless path component (not empty, '.' or '..', no separator, no control character:
+    a scene named '...toml' would otherwise write into the working directory); an InputError
+    asks for --out."""
+    if args.out:
+        return Path(args.out)
+    name = default.name
+    if default.parent != Path("out") or name in ("", ".", "..") or "\\" in name or not name.isprintable():
+        raise InputError(f"{args.scene}: the scene file's name gives no safe default output folder "
+                         f"(out/{name!r}); choose one with --out")
+    return default
+
+
+def _make_folder(out: Path) -> Path:
+    """``out``, created where missing; an unusable one is an InputError naming --out."""
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as e:
         raise InputError(f"--out {str(out)!r}: cannot create the output directory: {e.strerror or e}") from None
-    for name in complete:
-        (out / name).unlink(missing_ok=True)
     return out
+
+
+class OutputRun:
+    """A command's run into its output folder, a context manager (docs/outputs.md, "Output
+    safety"). ``names``: the command's output files, its ``complete`` completion files first
+    (the main one, ``names[0]``, first of all). On entry the folder (output_folder) is created
+    and locked for the run (tdcr_warp.io.files.FolderLock: a second run or sweep into it is
+    refused), the staging folders a killed run left are removed, and so are the completion files
+    an earlier run left. The command writes its files to ``run / name``, in a private staging
+    folder inside the output folder; :meth:`commit` moves them in, the completion files last
+    (``names[0]`` the very last), and removes the files of ``names`` that this run did not write,
+    so the folder never holds two runs' files beside a completion file. Leaving without commit
+    (an error, Ctrl-C) discards the staged files. ``str(run)`` is the output folder, printable."""
+
+    def __init__(self, args, default: Path, names: tuple[str, ...], complete: int = 1):
+        self.path, self.names, self.command = output_folder(args, default), names, args.command
+        self.complete = names[:complete]
+        self.stage: Path | None = None
+        self._lock = None
+
+    def __enter__(self) -> Self:
+        self._lock = FolderLock(_make_folder(self.path), self.command).__enter__()
+        try:
+            for old in self.path.glob(STAGE + "*"):  # a killed run's: no live run holds it (we hold the lock)
+                if old.is_dir() and not old.is_symlink():
+                    shutil.rmtree(old)
+                else:
+                    old.unlink()
+            for name in self.complete:
+                (self.path / name).unlink(missing_ok=True)
+            self.stage = Path(tempfile.mkdtemp(prefix=STAGE, dir=self.path))
+        except BaseException:
+            self._lock.__exit__()
+            raise
+        return self
+
+    def __truediv__(self, name: str) -> Path:
+        return self.stage / name
+
+    def __str__(self) -> str:
+        return printable(self.path)
+
+    def commit(self) -> None:
+        """Move the staged files into the output folder (the completion file last) and remove
+        the command's files that this run did not write."""
+        staged = sorted(p.name for p in self.stage.iterdir())
+        unknown = set(staged) - set(self.names)
+        if unknown or self.names[0] not in staged:
+            raise RuntimeError(f"{self.command} staged {staged}: not its outputs {self.names}, completion file first")
+        for name in set(self.names) - set(staged):
+            (self.path / name).unlink(missing_ok=True)
+        last = [n for n in reversed(self.complete) if n in staged]
+        for name in [n for n in staged if n not in last] + last:
+            os.replace(self.stage / name, self.path / name)
+        self.stage.rmdir()
+        self.stage = None
+
+    def __exit__(self, *exc) -> None:
+        try:
+            if self.stage is not None:
+                shutil.rmtree(self.stage, ignore_errors=True)
+        finally:
+            self._lock.__exit__()
 
 
 def _strict(obj):
@@ -100,6 +169,23 @@ def write_json(path: Path, obj) -> None:
         with open(tmp, "w") as f:
             json.dump(_strict(obj), f, indent=1, allow_nan=False)
     write_atomic(path, write)
+
+
+def csv_cell(value):
+    """A CSV cell that a spreadsheet shows rather than runs: text beginning with = + - @, a tab
+    or a carriage return gets a leading single quote (OWASP); numbers stay numbers."""
+    return "'" + value if isinstance(value, str) and value.startswith(FORMULA_START) else value
+
+
+class CsvWriter:
+    """csv.writer over the open text file ``f`` whose every cell goes through csv_cell: the
+    package's CSV writer (labels and file names copied from the input are neutralised)."""
+
+    def __init__(self, f):
+        self._w = csv.writer(f)
+
+    def writerow(self, row) -> None:
+        self._w.writerow([csv_cell(v) for v in row])
 
 
 def settings(scene, device) -> dict:

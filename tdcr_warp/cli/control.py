@@ -10,15 +10,15 @@ from pathlib import Path
 
 import numpy as np
 
-from tdcr_warp.cli.animation import add_run_arguments, animate, check_shapes, html_run
+from tdcr_warp.cli.animation import add_run_arguments, check_shapes, drawings
 from tdcr_warp.cli.common import (
     JSON_RODS,
+    OutputRun,
     add_command,
     add_html_argument,
     add_log_arguments,
     add_solver_arguments,
     apply_overrides,
-    out_dir,
     settings,
     write_arrays,
     write_json,
@@ -27,6 +27,8 @@ from tdcr_warp.cli.common import (
 from tdcr_warp.model.robot import InputError
 
 METRIC_TABLE = "metrics.parquet"
+FILES = ("metrics.json", "control.npz", METRIC_TABLE, "control_tip.png", "control_tension.png", "control_error_phase.png",
+         "robot.gif", "robot.html")
 
 
 def register(subparsers) -> None:
@@ -38,9 +40,6 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
-    from tdcr_warp.apps.control import METRIC_UNITS, control_metrics, run_closed_loop
-    from tdcr_warp.apps.jobs import scene_controller, scene_simulator
-    from tdcr_warp.io.plotting import plot_control
     from tdcr_warp.io.scene import load_scene
 
     scene = apply_overrides(load_scene(args.scene), args, dynamic=True)
@@ -49,7 +48,16 @@ def run(args) -> int:
         raise InputError(f"{args.scene}: control needs [dynamics] and [control] tables")
     steps = spec.steps if args.steps is None else args.steps
     check_shapes(args, spec)
-    out = out_dir(args, Path("out") / Path(args.scene).stem, "metrics.json")
+    with OutputRun(args, Path("out") / Path(args.scene).stem, FILES) as out:
+        return _run(args, scene, spec, steps, out)
+
+
+def _run(args, scene, spec, steps: int, out: OutputRun) -> int:
+    """Run the closed loops, write the files into ``out`` and commit them; the exit status."""
+    from tdcr_warp.apps.control import METRIC_UNITS, control_metrics, run_closed_loop
+    from tdcr_warp.apps.jobs import scene_controller, scene_simulator
+    from tdcr_warp.io.plotting import plot_control
+
     t0 = time.perf_counter()
     sim = scene_simulator(scene, args.device)
     controller = scene_controller(scene, sim, device=args.device)
@@ -65,16 +73,11 @@ def run(args) -> int:
               f"mean tension {np.round(metrics['mean_tension'][b], 3).tolist()} N")
     files = {"control.npz": write_arrays(out / "control.npz", loop)}
     completed = sim.failed_step < 0
-    if B <= JSON_RODS:
-        (out / METRIC_TABLE).unlink(missing_ok=True)  # an earlier, larger run's
-    else:
+    if B > JSON_RODS:
         files[METRIC_TABLE] = write_rod_table(out / METRIC_TABLE, "control", {"completed": completed},
                                               {"target": np.broadcast_to(controller.target, (B, 3))} | metrics)
     plot_control(loop, out, tension_max=controller.tau_max, gain_c=controller.C)
-    if args.animate:
-        animate(scene, loop, sim.grid, out)
-    if args.html:
-        html_run(scene, loop, sim.grid, out)
+    drawn = drawings(args, scene, loop, sim.grid, out)
     results = {
         "scene": str(args.scene), "settings": settings(scene, args.device or "default")
         | {"dt": spec.dt, "alpha": spec.alpha, "steps": steps, "method": controller.method,
@@ -87,8 +90,11 @@ def run(args) -> int:
                     "metrics": {k: np.where(np.isfinite(v), v, -1.0).tolist() for k, v in metrics.items()},
                     "metrics_note": "settling_time -1 means the tip never stayed inside the 0.5 mm band"}
     write_json(out / "metrics.json", results)
+    out.commit()
     print(f"wrote {out}/metrics.json, {', '.join(files)}, control_tip.png, control_tension.png, "
           "control_error_phase.png")
+    for note in drawn:
+        print(f"wrote {out}/{note}")
     if (sim.failed_step >= 0).any():
         print(f"{int((sim.failed_step >= 0).sum())} of {B} rods failed and were frozen", file=sys.stderr)
         return 1

@@ -6,17 +6,20 @@ from __future__ import annotations
 from pathlib import Path
 
 from tdcr_warp.cli.common import (
+    OutputRun,
     add_command,
     add_log_arguments,
     add_solver_arguments,
-    out_dir,
     positive_int,
     settings,
     write_atomic,
     write_json,
 )
 from tdcr_warp.cli.predict import add_data_argument, write_predictions
+from tdcr_warp.io.files import printable
 from tdcr_warp.model.robot import InputError
+
+FILES = ("fit.json", "fitted.toml", "predictions.csv")  # the completion files (fit.json written last) first
 
 
 def register(subparsers) -> None:
@@ -33,28 +36,36 @@ def register(subparsers) -> None:
 
 def run(args) -> int:
     """Calibrate a [hardware] scene on measured rows (tdcr_warp.apps.hardware.fit); writes fitted.toml."""
-    import tomli_w
-
-    from tdcr_warp.apps.hardware import fit, read_measurements
+    from tdcr_warp.apps.hardware import read_measurements
     from tdcr_warp.io.scene import load_scene
 
     scene = load_scene(args.scene)
     if scene.hardware is None:
         raise InputError(f"{args.scene}: fit needs a [hardware] table (servo_columns, marker_offset, base_offset)")
     meas = read_measurements(args.data, scene.hardware["servo_columns"])
-    out = out_dir(args, Path("out") / (Path(args.scene).stem + "_fit"), "fit.json", "fitted.toml")
-    print(f"fitting {Path(args.scene).name} on {len(meas)} rows ...", flush=True)
+    with OutputRun(args, Path("out") / (Path(args.scene).stem + "_fit"), FILES, complete=2) as out:
+        return _run(args, scene, meas, out)
+
+
+def _run(args, scene, meas, out: OutputRun) -> int:
+    """Fit, write the files into ``out`` and commit them; the exit status."""
+    import tomli_w
+
+    from tdcr_warp.apps.hardware import fit
+
+    print(f"fitting {printable(Path(args.scene).name)} on {len(meas)} rows ...", flush=True)
     res = fit(scene.source, meas, detail=args.detail, device=args.device, max_iter=args.max_iter,
               progress=None if args.quiet else _print_iteration)
     rep = res["report"]
-    header = (f"# Fitted by tdcr-warp fit from {Path(args.scene).name} on "
-              f"{', '.join(Path(d).name for d in args.data)}\n"
+    header = (f"# Fitted by tdcr-warp fit from {printable(Path(args.scene).name)} on "  # one comment line each
+              f"{printable(', '.join(Path(d).name for d in args.data))}\n"
               f"# ({len(meas)} rows): training RMSE {rep['training']['rmse_mm']:.3f} mm, aligned "
               f"{rep['training']['rmse_aligned_mm']:.3f} mm; parameters and uncertainty in fit.json.\n")
     write_atomic(out / "fitted.toml", lambda tmp: Path(tmp).write_text(header + tomli_w.dumps(res["scene"])))
     write_predictions(out / "predictions.csv", meas, res["prediction"])
     write_json(out / "fit.json", rep | {"scene": str(args.scene), "data": [str(d) for d in args.data],
                                         "settings": settings(scene, args.device or "default")})
+    out.commit()  # fitted.toml, then fit.json last
     t = rep["training"]
     print(f"fit in {rep['wall_s']:.0f} s, {rep['iterations']} iterations: training RMSE {t['rmse_mm']:.3f} mm "
           f"({t['rmse_percent_of_length']:.2f}% of the length), aligned {t['rmse_aligned_mm']:.3f} mm")

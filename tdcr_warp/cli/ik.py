@@ -14,12 +14,12 @@ import numpy as np
 
 from tdcr_warp.cli.common import (
     JSON_RODS,
+    OutputRun,
     add_command,
     add_log_arguments,
     add_solver_arguments,
     apply_overrides,
     load_kernels,
-    out_dir,
     settings,
     write_arrays,
     write_json,
@@ -28,6 +28,7 @@ from tdcr_warp.cli.common import (
 from tdcr_warp.model.robot import InputError
 
 IK_TABLE = "ik.parquet"
+FILES = ("ik.json", "ik.npz", IK_TABLE)  # the completion file first
 
 
 def register(subparsers) -> None:
@@ -38,14 +39,20 @@ def register(subparsers) -> None:
 
 def run(args) -> int:
     """Inverse kinematics of the scene's [ik] targets (tdcr_warp.apps.ik)."""
-    from tdcr_warp.apps.ik import solve_ik
     from tdcr_warp.io.scene import load_scene
 
     scene = apply_overrides(load_scene(args.scene), args)
     ik = scene.ik
     if ik is None:
         raise InputError(f"{args.scene}: ik needs an [ik] table (targets = [[x, y, z], ...] in m)")
-    out = out_dir(args, Path("out") / Path(args.scene).stem, "ik.json")
+    with OutputRun(args, Path("out") / Path(args.scene).stem, FILES) as out:
+        return _run(args, scene, ik, out)
+
+
+def _run(args, scene, ik: dict, out: OutputRun) -> int:
+    """Solve the targets, write the files into ``out`` and commit them; the exit status."""
+    from tdcr_warp.apps.ik import solve_ik
+
     load_s = load_kernels(replace(scene, options=replace(scene.options, sensitivities=True)), args)
     t0 = time.perf_counter()
     kw = {k: ik[k] for k in ("tension_max", "displacement_range", "tol", "max_iter") if k in ik}
@@ -61,9 +68,7 @@ def run(args) -> int:
         print(f"  ... {B - 10} more rods")
     targets = np.broadcast_to(np.array(ik["targets"], dtype=np.float64), (B, 3))
     files = {"ik.npz": write_arrays(out / "ik.npz", res, reason=np.array(res.reason))}
-    if B <= JSON_RODS:
-        (out / IK_TABLE).unlink(missing_ok=True)  # an earlier, larger run's
-    else:
+    if B > JSON_RODS:
         files[IK_TABLE] = _write_table(out / IK_TABLE, res, targets)
     results = {"scene": str(args.scene), "settings": settings(scene, args.device or "default"),
                "batch_size": B, "wall_time_s": wall, "kernel_load_s": load_s,
@@ -76,7 +81,8 @@ def run(args) -> int:
                             "orientation_error_rad": float(res.orientation_error[b]),
                             "success": bool(res.success[b]), "reason": res.reason[b],
                             "iterations": int(res.iterations[b])} for b in range(B)]
-    write_json(out / "ik.json", results)  # last: its presence means the run is complete
+    write_json(out / "ik.json", results)
+    out.commit()  # ik.json last: its presence means the run is complete
     print(f"wrote {out}/ik.json, {', '.join(files)}")
     missed = int((~res.success).sum())
     if missed:

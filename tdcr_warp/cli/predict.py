@@ -9,12 +9,13 @@ from pathlib import Path
 import numpy as np
 
 from tdcr_warp.cli.common import (
+    CsvWriter,
+    OutputRun,
     add_command,
     add_log_arguments,
     add_solver_arguments,
     apply_overrides,
     load_kernels,
-    out_dir,
     settings,
     write_atomic,
     write_json,
@@ -25,6 +26,7 @@ from tdcr_warp.model.robot import InputError
 PREDICT_UNITS = {"rows": "1", "converged": "1", "unstable": "1", "rmse_mm": "mm", "rmse_aligned_mm": "mm", "median_mm": "mm",
                  "p95_mm": "mm", "mean_offset_mm": "mm", "rmse_percent_of_length": "%", "wall_time_s": "s",
                  "kernel_load_s": "s", "ms_per_row": "ms"}
+FILES = ("metrics.json", "predictions.csv", "predict.png")  # the completion file first
 
 
 def add_data_argument(p) -> None:
@@ -44,15 +46,22 @@ def register(subparsers) -> None:
 
 def run(args) -> int:
     """Predict measured tips of a scene with a [hardware] table (tdcr_warp.apps.hardware)."""
-    from tdcr_warp.apps.hardware import metrics, read_measurements
-    from tdcr_warp.io.plotting import plot_prediction
+    from tdcr_warp.apps.hardware import read_measurements
     from tdcr_warp.io.scene import load_scene
 
     scene = apply_overrides(load_scene(args.scene), args)
     if scene.hardware is None:
         raise InputError(f"{args.scene}: predict needs a [hardware] table (servo_columns, marker_offset, base_offset)")
     meas = read_measurements(args.data, scene.hardware["servo_columns"])
-    out = out_dir(args, Path("out") / Path(args.scene).stem, "metrics.json", "predict.png")
+    with OutputRun(args, Path("out") / Path(args.scene).stem, FILES) as out:
+        return _run(args, scene, meas, out)
+
+
+def _run(args, scene, meas, out: OutputRun) -> int:
+    """Predict the rows, write the files into ``out`` and commit them; the exit status."""
+    from tdcr_warp.apps.hardware import metrics
+    from tdcr_warp.io.plotting import plot_prediction
+
     load_s = load_kernels(scene, args)
     pred = _solve(scene, meas, args)
     m = metrics(pred["error_mm"], pred["converged"], float(np.max(scene.robot.length)))
@@ -72,6 +81,7 @@ def run(args) -> int:
                                           "recorded_order": bool(args.recorded_order),
                                           "units": PREDICT_UNITS,
                                           "settings": settings(scene, args.device or "default")})
+    out.commit()
     print(f"wrote {out}/metrics.json, predictions.csv, " + ("predict.png" if m["converged"] else
                                                               "no predict.png: no row converged, nothing to plot"))
     return 0 if m["converged"] == m["rows"] else 1
@@ -94,12 +104,10 @@ def _solve(scene, meas, args) -> dict:
 
 def write_predictions(path: Path, meas, pred: dict) -> None:
     """predictions.csv: one row per input row, predicted and measured tip [mm], error, flags."""
-    import csv
-
     K = pred["slack"].shape[1] if pred["slack"] is not None else 0
     def write(tmp):
         with open(tmp, "w", newline="") as f:
-            w = csv.writer(f)
+            w = CsvWriter(f)  # labels and file names neutralised (csv_cell)
             w.writerow(["row", "source", "pattern_label", "pred_x_mm", "pred_y_mm", "pred_z_mm", "meas_x_mm",
                         "meas_y_mm", "meas_z_mm", "error_mm", "converged", "unstable", "retried"]
                        + [f"slack_{k}" for k in range(K)])

@@ -12,11 +12,11 @@ from pathlib import Path
 import numpy as np
 
 from tdcr_warp.cli.common import (
+    OutputRun,
     add_command,
     add_log_arguments,
     add_solver_arguments,
     apply_overrides,
-    out_dir,
     overridden_source,
     positive_int,
     settings,
@@ -43,8 +43,6 @@ def register(subparsers) -> None:
 def run(args) -> int:
     """CMA-ES over the [search] gains, each generation one batch of closed loops
     (tdcr_warp.apps.gainsearch); with --grid beside the best of a finished gain-grid sweep."""
-    from tdcr_warp.apps.gainsearch import search_gains
-    from tdcr_warp.io.plotting import plot_search
     from tdcr_warp.io.scene import load_scene, scene_from_dict
 
     base = apply_overrides(load_scene(args.scene), args, dynamic=True)
@@ -55,7 +53,17 @@ def run(args) -> int:
     spec = scene.dynamics
     duration = spec.steps * spec.dt
     grid = None if args.grid is None else _grid_reference(args.grid, list(opts["ranges"]), spec.dt, duration)
-    out = out_dir(args, Path("out") / f"{Path(args.scene).stem}_search", "results.json")
+    with OutputRun(args, Path("out") / f"{Path(args.scene).stem}_search", ("results.json", "search.png")) as out:
+        return _run(args, scene, opts, grid, out)
+
+
+def _run(args, scene, opts: dict, grid: dict | None, out: OutputRun) -> int:
+    """Search, write the files into ``out`` and commit them; the exit status."""
+    from tdcr_warp.apps.gainsearch import search_gains
+    from tdcr_warp.io.plotting import plot_search
+
+    spec = scene.dynamics
+    duration = spec.steps * spec.dt
     t0 = time.perf_counter()
     res = _search(search_gains, replace(scene, search=opts), args)
     wall = time.perf_counter() - t0
@@ -77,6 +85,7 @@ def run(args) -> int:
     if grid is not None:
         results["grid"] = grid | {"search_at_least_as_good": res.objective <= grid["best"]["objective"]}
     write_json(out / "results.json", results)
+    out.commit()
     _report(res, wall, failed, results.get("grid"))
     print(f"wrote {out}/results.json, search.png")
     return 0

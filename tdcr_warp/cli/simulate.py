@@ -9,9 +9,10 @@ from pathlib import Path
 
 import numpy as np
 
-from tdcr_warp.cli.animation import add_run_arguments, animate, check_shapes, html_run
+from tdcr_warp.cli.animation import add_run_arguments, check_shapes, drawings
 from tdcr_warp.cli.common import (
     JSON_RODS,
+    OutputRun,
     add_command,
     add_html_argument,
     add_log_arguments,
@@ -19,7 +20,6 @@ from tdcr_warp.cli.common import (
     add_solver_arguments,
     apply_overrides,
     load_kernels,
-    out_dir,
     print_rods,
     settings,
     write_arrays,
@@ -29,6 +29,7 @@ from tdcr_warp.cli.common import (
 from tdcr_warp.model.robot import InputError
 
 ROD_TABLE = "rods.parquet"
+FILES = ("results.json", "trajectory.npz", ROD_TABLE, "tip_position.png", "tip_rates.png", "robot.gif", "robot.html")
 
 
 def register(subparsers) -> None:
@@ -42,7 +43,6 @@ def register(subparsers) -> None:
 
 def run(args) -> int:
     from tdcr_warp.io.scene import load_scene
-    from tdcr_warp.physics.dynamics import Simulator
 
     scene = apply_overrides(load_scene(args.scene), args, dynamic=True)
     spec = scene.dynamics
@@ -52,7 +52,14 @@ def run(args) -> int:
     if steps > spec.steps:
         raise InputError(f"--steps {steps} exceeds the scene's [dynamics].steps = {spec.steps}")
     check_shapes(args, spec)
-    out = out_dir(args, Path("out") / Path(args.scene).stem, "results.json")
+    with OutputRun(args, Path("out") / Path(args.scene).stem, FILES) as out:
+        return _run(args, scene, spec, steps, out)
+
+
+def _run(args, scene, spec, steps: int, out: OutputRun) -> int:
+    """Simulate, write the files into ``out`` and commit them; the exit status."""
+    from tdcr_warp.physics.dynamics import Simulator
+
     load_s = load_kernels(scene, args, dynamic=True)
     t0 = time.perf_counter()
     sim = Simulator(scene.robot, scene.tensions, dt=spec.dt, alpha=spec.alpha, options=scene.options,
@@ -70,19 +77,14 @@ def run(args) -> int:
     print_rods(traj.tip_position[-1], ok, traj.iterations.max(axis=0), traj.residual[-1], reasons)
     files = {"trajectory.npz": write_arrays(out / "trajectory.npz", traj)}
     failed_step = np.where(traj.failed_step >= 0, traj.failed_step + 1, 0)  # 1-based, 0: none
-    if B <= JSON_RODS:
-        (out / ROD_TABLE).unlink(missing_ok=True)  # an earlier, larger run's
-    else:
+    if B > JSON_RODS:
         files[ROD_TABLE] = write_rod_table(out / ROD_TABLE, "simulate", {"completed": ok, "failed_step": failed_step},
                                            {"final_tip_position": traj.tip_position[-1],
                                             "max_iterations": traj.iterations.max(axis=0)})
     if not args.no_figures:
         from tdcr_warp.io.plotting import plot_tip_history
         plot_tip_history(traj.time, traj.tip_position, traj.tip_velocity, traj.tip_acceleration, out)
-    if args.animate:
-        animate(scene, traj, sim.grid, out)
-    if args.html:
-        html_run(scene, traj, sim.grid, out)
+    drawn = drawings(args, scene, traj, sim.grid, out)
     results = {
         "scene": str(args.scene), "settings": settings(scene, args.device or "default")
         | {"dt": spec.dt, "alpha": spec.alpha, "steps": steps},
@@ -94,7 +96,10 @@ def run(args) -> int:
                     "failed_step": [int(f) if f else None for f in failed_step],
                     "max_iterations": traj.iterations.max(axis=0).tolist()}
     write_json(out / "results.json", results)
+    out.commit()
     print(f"wrote {out}/results.json, {', '.join(files)}{'' if args.no_figures else ', tip_position.png, tip_rates.png'}")
+    for note in drawn:
+        print(f"wrote {out}/{note}")
     if not ok.all():
         print(f"{int((~ok).sum())} of {B} rods failed and were frozen (failed_step in "
               f"{'results.json' if B <= JSON_RODS else ROD_TABLE})", file=sys.stderr)

@@ -13,6 +13,7 @@ import numpy as np
 
 from tdcr_warp.cli.common import (
     JSON_RODS,
+    OutputRun,
     add_command,
     add_html_argument,
     add_log_arguments,
@@ -20,7 +21,6 @@ from tdcr_warp.cli.common import (
     add_solver_arguments,
     apply_overrides,
     load_kernels,
-    out_dir,
     print_rods,
     settings,
     write_arrays,
@@ -30,6 +30,7 @@ from tdcr_warp.cli.common import (
 )
 
 ROD_TABLE = "rods.parquet"
+FILES = ("results.json", "shapes.npz", ROD_TABLE, "shapes.png", "robot.html")  # the completion file first
 
 
 def register(subparsers) -> None:
@@ -42,12 +43,18 @@ def register(subparsers) -> None:
 
 def run(args) -> int:
     from tdcr_warp.io.scene import load_scene
-    from tdcr_warp.physics.statics import solve_static
 
     t0 = time.perf_counter()
     scene = apply_overrides(load_scene(args.scene), args)
     scene_s = time.perf_counter() - t0
-    out = out_dir(args, Path("out") / Path(args.scene).stem, "results.json")
+    with OutputRun(args, Path("out") / Path(args.scene).stem, FILES) as out:
+        return _run(args, scene, scene_s, out)
+
+
+def _run(args, scene, scene_s: float, out: OutputRun) -> int:
+    """Solve, write the files into ``out`` and commit them; the exit status."""
+    from tdcr_warp.physics.statics import solve_static
+
     load_s = load_kernels(scene, args)
     t0 = time.perf_counter()
     sol = solve_static(scene.robot, scene.tensions, options=scene.options, device=args.device,
@@ -61,14 +68,11 @@ def run(args) -> int:
     t0 = time.perf_counter()
     small = B <= JSON_RODS
     files = {"shapes.npz": write_arrays(out / "shapes.npz", sol)}
-    if small:
-        (out / ROD_TABLE).unlink(missing_ok=True)  # an earlier, larger run's
-    else:
+    if not small:
         files[ROD_TABLE] = _write_rod_table(out / ROD_TABLE, scene, sol, reasons)
     write_s = time.perf_counter() - t0
     drawn = not args.no_figures and _plot(scene, sol, out)
-    if args.html:
-        _html(scene, sol, out)
+    html = args.html and _html(scene, sol, out)
     failed = ~sol.success  # not converged, or an unstable equilibrium
     results = {
         "scene": str(args.scene), "settings": settings(scene, args.device or "default"),
@@ -77,8 +81,11 @@ def run(args) -> int:
         "failed_rods": int(failed.sum()),
         "failure_reasons": dict(Counter(reasons[b] for b in np.flatnonzero(failed))), "files": files,
     } | (_rods_json(sol, reasons) if small else {})
-    write_json(out / "results.json", results)  # last: its presence means the run is complete
+    write_json(out / "results.json", results)
+    out.commit()  # results.json last: its presence means the run is complete
     print(f"wrote {out}/results.json, {', '.join(files)}{', shapes.png' if drawn else ''}")
+    if html:
+        print(f"wrote {out}/{html}")
     if failed.any():
         why = ", ".join(f"{n} x {reason}" for reason, n in results["failure_reasons"].items())
         print(f"tdcr-warp: {int(failed.sum())} of {B} rods did not converge or are unstable: {why} (per rod in "
@@ -166,7 +173,7 @@ def _tendon_rows(sol, b: int) -> list[dict]:
     return rows
 
 
-def _plot(scene, sol, out: Path) -> bool:
+def _plot(scene, sol, out: OutputRun) -> bool:
     """shapes.png: the first solved rods (tdcr_warp.io.plotting); whether it was drawn."""
     from tdcr_warp.io.drawing import robot_geometry
     from tdcr_warp.io.plotting import MAX_RODS_DRAWN, plot_robot
@@ -189,16 +196,17 @@ def _drawable(sol, most: int) -> int:
     return n if finite.all() else int(np.argmin(finite))
 
 
-def _html(scene, sol, out: Path) -> None:
-    """robot.html: the interactive viewer of the first solved rods (tdcr_warp.io.viewer)."""
+def _html(scene, sol, out: OutputRun) -> str | None:
+    """robot.html: the interactive viewer of the first solved rods (tdcr_warp.io.viewer); what
+    was written (``robot.html (n rods)``), None for nothing."""
     from tdcr_warp.io.viewer import MAX_RODS, write_viewer
 
     n = _drawable(sol, MAX_RODS)
     if n == 0:
         print("robot.html not written: the first rod has no finite shape")
-        return
+        return None
     names = [f"rod {b}" + ("" if sol.converged[b] else " (not converged)") for b in range(n)]
     write_atomic(out / "robot.html", lambda tmp: write_viewer(
         tmp, scene.robot, sol.positions[:n], sol.rotations[:n], sol.s[:n], sol.tendon_tension_base[:n],
         display=scene.display, names=names))
-    print(f"wrote {out}/robot.html ({n} rod{'s' * (n > 1)})")
+    return f"robot.html ({n} rod{'s' * (n > 1)})"

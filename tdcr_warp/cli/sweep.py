@@ -15,10 +15,12 @@ from tdcr_warp.cli.common import (
     add_solver_arguments,
     apply_overrides,
     number_type,
+    output_folder,
     overridden_source,
     settings,
     write_json,
 )
+from tdcr_warp.io.files import printable
 from tdcr_warp.model.robot import InputError
 
 SWEEPS = (("montecarlo", "tip distribution (and control success) under [[uncertainty]]"),
@@ -68,14 +70,15 @@ def run(args) -> int:
     if args.backend == "ray" and gpus > 0:
         dev = "cuda:0"  # Ray makes the task's GPU the first visible one
     job = SweepJob(job_name, device=dev, nominal=data if job_name == "montecarlo" else None, shapes=args.shapes)
-    out = Path(args.out or Path("out") / f"{Path(args.scene).stem}_{job_name}")
+    out = output_folder(args, Path("out") / f"{Path(args.scene).stem}_{job_name}")
+    shown = printable(out)
     try:
         swept = run_sweep(data, job, out, chunk=args.chunk, resume=args.resume, overwrite=args.overwrite,
                           progress=not args.quiet, max_chunks=args.max_chunks, job_name=job_name,
                           backend=args.backend, address=args.address, workers=args.workers, gpus_per_task=gpus,
                           meta={"shapes": args.shapes})
         if swept is None:
-            print(f"stopped after {args.max_chunks} new chunk(s); rerun with --resume to finish ({out})")
+            print(f"stopped after {args.max_chunks} new chunk(s); rerun with --resume to finish ({shown})")
             return 1
         if not args.quiet:
             print("summarising the chunks ...", flush=True)
@@ -86,7 +89,7 @@ def run(args) -> int:
                        settings=settings(base, dev or "default"))
         write_json(out / "summary.json", summary)  # last: its presence means the sweep is complete
     except KeyboardInterrupt:
-        print(f"tdcr-warp: interrupted; the finished chunks are kept in {out}: rerun with --resume to finish",
+        print(f"tdcr-warp: interrupted; the finished chunks are kept in {shown}: rerun with --resume to finish",
               file=sys.stderr)
         return 130
     done = (f"{swept.computed_rods:,} computed in {swept.wall_s:.1f} s ({rate:,.0f} rods/s)" if rate else
@@ -96,7 +99,7 @@ def run(args) -> int:
         best = summary["best"]
         print(f"best gains {best['gains']}: settling {best['settling_time']:.3f} s, final error "
               f"{best['final_error'] * 1e3:.3f} mm, chatter {best['chatter']:.2e} N")
-    print(f"wrote {out}/summary.json, results/ (Parquet){', arrays.zarr' if (out / 'arrays.zarr').exists() else ''}, "
+    print(f"wrote {shown}/summary.json, results/ (Parquet){', arrays.zarr' if (out / 'arrays.zarr').exists() else ''}, "
           "figures")
     return 0
 

@@ -24,6 +24,7 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import NamedTuple
 
+from tdcr_warp.io.files import printable
 from tdcr_warp.kernels.variants import ALL, INTEGRATORS, MODELS, RODS, Features
 
 __all__ = ["Variant", "compile_variant", "covering_variants", "all_variants", "group", "main", "segmented"]
@@ -161,7 +162,7 @@ def main(argv=None) -> int:
         Path(out).mkdir(parents=True, exist_ok=True)
         results = compile_all(variants, args.arch, out, args.jobs)
         files = sum(len(f) for _, mods in results for _, _, f in mods)
-    print(f"built {files} cubins in {time.perf_counter() - t0:.0f} s" + (f" into {args.out}" if args.out else ""))
+    print(f"built {files} cubins in {time.perf_counter() - t0:.0f} s" + (f" into {printable(args.out)}" if args.out else ""))
     return 0
 
 

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import matplotlib
@@ -12,22 +11,18 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from tdcr_warp.io.drawing import AXIS_COLOURS, DISK_COLOUR, TENSION_SCALE, rod_colours  # noqa: E402
+from tdcr_warp.io.files import write_atomic  # noqa: E402
 
 MAX_RODS_DRAWN = 200
 OBSTACLE_COLOUR = "0.45"  # the obstacles' outlines: grey
 
 
 def _save(fig, path: Path) -> None:
-    """Save atomically: a hidden temporary file in the same directory, then a rename."""
-    path = Path(path)
-    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp{path.suffix}")
+    """Save atomically (tdcr_warp.io.files.write_atomic), then close the figure."""
     try:
-        fig.savefig(tmp, dpi=110)
-        os.replace(tmp, path)
+        write_atomic(path, lambda tmp: fig.savefig(tmp, dpi=110))
     finally:
         plt.close(fig)
-        if tmp.exists():
-            tmp.unlink()
 
 
 MAX_ROBOTS_DRAWN = 10  # rods drawn with disks and tendons; further rods: backbone only
@@ -229,15 +224,10 @@ def animate_robot(frames: list, times: np.ndarray, path: Path, converged=None, f
             axes[key].plot(tips[:n + 1, :, i], tips[:n + 1, :, j], ":", color="0.35", lw=1.0, gid="tip path")
         title.set_text(f"t = {times[pick[n]]:.3f} s")
     anim = FuncAnimation(fig, draw, frames=len(pick))
-    path = Path(path)
-    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp{path.suffix}")
     try:
-        anim.save(tmp, writer=PillowWriter(fps=fps), dpi=80)
-        os.replace(tmp, path)
+        write_atomic(path, lambda tmp: anim.save(tmp, writer=PillowWriter(fps=fps), dpi=80))
     finally:
         plt.close(fig)
-        if tmp.exists():
-            tmp.unlink()
     return len(pick)
 
 

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from tdcr_warp.io.drawing import display_options
-from tdcr_warp.io.files import SCENE_LIMIT, TABLE_LIMIT, read_limited
+from tdcr_warp.io.inputs import SCENE_LIMIT, TABLE_LIMIT, read_limited
 from tdcr_warp.model.checks import is_number
 from tdcr_warp.model.options import StaticOptions, check_model_support
 from tdcr_warp.model.robot import (

@@ -9,6 +9,7 @@ An output folder holds one sweep:
                             (Zarr format 2 with xarray's dimension names, consolidated at the end)
     summary.json, *.png     the job's summary, written last
     .lock                   held (flock) by the one process writing the folder
+                            (tdcr_warp.io.files.FolderLock; a link there is refused)
 
 Every part carries in its Parquet metadata what identifies it: the sweep's fingerprint, the
 chunk index, its row range and row count, and a SHA-256 of its columns and of its Zarr rows.
@@ -25,16 +26,14 @@ import hashlib
 import json
 import os
 import shutil
-import socket
-import time
 from pathlib import Path
-from typing import Self
 
 import numpy as np
 
+from tdcr_warp.io.files import open_lock, write_atomic
 from tdcr_warp.model.robot import InputError
 
-__all__ = ["ChunkError", "ChunkStore", "SweepLock", "clear_outputs", "read_manifest", "table_columns", "write_manifest",
+__all__ = ["ChunkError", "ChunkStore", "check_no_links", "clear_outputs", "read_manifest", "table_columns", "write_manifest",
            "write_table"]
 
 FORMAT = 1
@@ -53,12 +52,6 @@ class ChunkError(InputError):
     input on disk, so the command line exits with status 2 naming the file."""
 
 
-def _atomic_write_text(path: Path, text: str) -> None:
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
-
-
 def read_manifest(out: Path) -> dict | None:
     """The manifest of the sweep in ``out``, {"legacy": True} for an output folder of the
     earlier npz layout, or None for a folder without a sweep."""
@@ -74,7 +67,7 @@ def read_manifest(out: Path) -> dict | None:
 
 
 def write_manifest(out: Path, manifest: dict) -> None:
-    _atomic_write_text(out / MANIFEST, json.dumps(manifest, indent=1))
+    write_atomic(out / MANIFEST, lambda tmp: Path(tmp).write_text(json.dumps(manifest, indent=1)))
 
 
 def clear_outputs(out: Path, everything: bool) -> None:
@@ -84,56 +77,28 @@ def clear_outputs(out: Path, everything: bool) -> None:
     names = [SUMMARY, *FIGURES] + ([MANIFEST, TABLE, ARRAYS, *LEGACY] if everything else [])
     for name in names:
         p = out / name
-        if p.is_dir():
+        if p.is_dir() and not p.is_symlink():
             shutil.rmtree(p)
-        elif p.exists():
-            p.unlink()
+        elif p.is_symlink() or p.exists():
+            p.unlink()  # a link itself, never what it points to
 
 
-class SweepLock:
-    """One writer per output folder: an exclusive ``flock`` on ``out/.lock``. The kernel drops it
-    when the process ends however it ends (kill -9 included), so a lock file left behind by a
-    dead process is stale by construction: the next sweep takes it over (``stale`` says whose
-    it was). A second live sweep is refused with a message naming the holder."""
-
-    def __init__(self, out: Path):
-        self.path = Path(out) / ".lock"
-        self.stale: dict | None = None
-        self._f = None
-
-    def __enter__(self) -> Self:
-        f = open(self.path, "a+")
-        try:
-            fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            f.seek(0)
-            owner = f.read().strip() or "unknown process"
-            f.close()
-            raise InputError(f"{self.path.parent} is being written by another sweep ({owner}); wait for it to end "
-                             "or choose another --out") from None
-        f.seek(0)
-        old = f.read().strip()
-        if old:
-            with contextlib.suppress(ValueError):
-                self.stale = json.loads(old)
-        f.seek(0)
-        f.truncate()
-        f.write(json.dumps({"pid": os.getpid(), "host": socket.gethostname(),
-                            "started": time.strftime("%Y-%m-%dT%H:%M:%S%z")}))
-        f.flush()
-        self._f = f
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self._f.seek(0)
-        self._f.truncate()
-        fcntl.flock(self._f, fcntl.LOCK_UN)
-        self._f.close()
+def check_no_links(out: Path) -> None:
+    """Neither the folders a sweep writes into (its parts, its arrays) nor anything in them is a
+    symbolic link: Zarr and the parts would write through a linked folder, elsewhere. An
+    InputError names the first link found."""
+    for name in (TABLE, ARRAYS):
+        top = out / name
+        found = [top] if top.is_symlink() else (Path(d) / n for d, dirs, files in os.walk(top) for n in dirs + files)
+        link = next((p for p in found if p.is_symlink()), None)
+        if link is not None:
+            raise InputError(f"{link} is a symbolic link: a sweep writes nothing through a link; remove it, or "
+                             "--overwrite replaces the sweep")
 
 
 @contextlib.contextmanager
 def _file_lock(path: Path):
-    with open(path, "a") as f:
+    with open_lock(path) as f:
         fcntl.flock(f, fcntl.LOCK_EX)
         try:
             yield
@@ -193,19 +158,16 @@ def _arrow(v):
 
 def write_table(path: Path, columns: dict, meta: dict) -> None:
     """One Parquet file of ``columns`` (NumPy arrays of one axis, or lists of strings), with
-    ``meta`` as JSON under the schema metadata key ``tdcr_warp``; written to a temporary file
-    and renamed."""
+    ``meta`` as JSON under the schema metadata key ``tdcr_warp``; written atomically
+    (tdcr_warp.io.files.write_atomic)."""
     import pyarrow as pa
     import pyarrow.parquet as pq
 
     table = pa.Table.from_arrays([_arrow(v) for v in columns.values()], names=list(columns))
     table = table.replace_schema_metadata({"tdcr_warp": json.dumps(meta)})
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:  # dictionary pages for the strings only: for numbers they cost 2.5x the time and save nothing
-        pq.write_table(table, tmp, use_dictionary=[k for k, v in columns.items() if isinstance(v, list)])
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
+    # dictionary pages for the strings only: for numbers they cost 2.5x the time and save nothing
+    strings = [k for k, v in columns.items() if isinstance(v, list)]
+    write_atomic(path, lambda tmp: pq.write_table(table, tmp, use_dictionary=strings))
 
 
 class ChunkStore:
