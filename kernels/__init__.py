@@ -32,7 +32,8 @@ family's file and keyed only by what it needs; a feature a scene lacks compiles 
   shoot, tip_residual, Nodes                     integration.py  base to tip: the shooting residual
   Newton, begin, update, solve_dense, ...        newton.py     damped (quasi-)Newton per rod
   totals, column, phases, track, sweep,          jacobi.py     the stability verdict: Jacobi fields
-    verdict, asymmetry, the verdict kernel                     of the solution and their phases
+    verdict, asymmetry, restart (split rods),                  of the solution and their phases
+    the verdict kernel
   invert, abs_det, symmetric_eigenvalues (6x6,  dense6.py     the verdict's dense algebra
     in a per-thread work array)
   solve / probe / update / finish / begin /      drivers.py    the Warp kernels (one module per

@@ -17,6 +17,12 @@ NEUTRAL of an odd multiple of pi / 2 at the tip is a neutral mode (a symmetry), 
 one. P comes from the chart (U cos b + V sin b, V cos b - U sin b) of the best-conditioned of 4
 angles b, so a singular U (a crossing, the inextensible rod's axial direction) needs no care.
 
+A rod solved in segments (multiple shooting) has its fields carried over the segments: at every
+node a pass reaches, the probes restart from the solution plus a small multiple of an orthonormal
+basis of the fields (``restart``: the same plane, fields that grow along the rod stay resolved),
+and at each later segment's start the solution restarts from the solved shape (tdcr_warp/physics/
+stability.py, ``restart_nodes``).
+
   make_verdict_kernel   the kernel of one static variant (module "evaluate")
   kernels/dense6.py     its small dense linear algebra (6 x 6)
 """
@@ -29,9 +35,10 @@ import warp as wp
 
 from .dense6 import make_dense6
 from .drivers import module_names
-from .integration import N_BASE, make_residual
+from .integration import N_BASE, make_nodes, make_residual
 from .layout import FORCE_SCALE, KBT, KSE, LENGTH, MOMENT_SCALE
 from .nodes import make_rod_funcs
+from .segments import segmentable
 from .stepping import make_interval
 from .strains import make_strains
 from .structs import make_rows, make_structs, tendon_vectors
@@ -40,7 +47,8 @@ from .variants import STAGES, Features
 
 CHARTS = 4  # angles b = j pi / CHARTS tried for the best-conditioned chart
 CHART_MIN = 0.05  # a chart is kept from node to node while its Hadamard ratio stays above this
-U_SLOT, V_SLOT, A_SLOT, X_SLOT = 0, 1, 2, 3  # the matrices of a thread's work array (B, 4, 6, 6)
+U_SLOT, V_SLOT, A_SLOT, X_SLOT, D_SLOT = 0, 1, 2, 3, 4  # the matrices of a thread's work array (B, 5, 6, 6)
+SHEAR_STEPS = 16  # the disk model: a disk's jump of V, followed in this many steps
 
 
 @functools.cache
@@ -389,25 +397,178 @@ def make_advance(dtype, integrator: str, model: str, rod: str, features: Feature
 
 
 @functools.cache
+def make_state_basis(dtype, integrator: str, model: str, rod: str, features: Features):
+    """The fields in state form past a node (Y, 12 x 6 in slots A_SLOT and X_SLOT), made orthonormal."""
+    v = _shared(dtype, integrator, model, rod, features)
+    vec3, vecu, Fields = v.vec3, v.vecu, v.Fields
+    Work = make_dense6(dtype).Work
+    half = dtype(0.5)
+
+    @wp.func
+    def field(wk: Work, i: int, b: int, j: int):
+        """Row i of the state fields Y (12 x 6: dp / L, eta, dn / F, dm / M) in slots A_SLOT, X_SLOT."""
+        return wk[b, wp.where(i < 6, A_SLOT, X_SLOT), i % 6, j]
+
+    @wp.func
+    def orthonormalise(wk: Work, b: int):
+        """The columns of Y made orthonormal (Gram-Schmidt, twice): the same plane."""
+        for j in range(6):
+            for _again in range(2):
+                for i in range(j):
+                    d = dtype(0.0)
+                    for r in range(12):
+                        d = d + field(wk, r, b, i) * field(wk, r, b, j)
+                    for r in range(12):
+                        wk[b, wp.where(r < 6, A_SLOT, X_SLOT), r % 6, j] = field(wk, r, b, j) - d * field(wk, r, b, i)
+            c2 = dtype(0.0)
+            for r in range(12):
+                c2 = c2 + field(wk, r, b, j) * field(wk, r, b, j)
+            inv = dtype(1.0) / wp.sqrt(c2)
+            for r in range(12):
+                wk[b, wp.where(r < 6, A_SLOT, X_SLOT), r % 6, j] = field(wk, r, b, j) * inv
+
+    @wp.func
+    def state_fields(fd: Fields, b: int, h: vecu, L: dtype, F: dtype, Mo: dtype):
+        """Y from the trajectories' states past the node (columns: the 6 probes)."""
+        R0 = fd.R[b, 0]
+        for j in range(6):
+            W = (fd.R[b, j + 1] - R0) * wp.transpose(R0)
+            eta = half * vec3(W[2, 1] - W[1, 2], W[0, 2] - W[2, 0], W[1, 0] - W[0, 1])
+            dp = (fd.p[b, j + 1] - fd.p[b, 0]) / L
+            dn = (fd.n[b, j + 1] - fd.n[b, 0]) / F
+            dm = (fd.m[b, j + 1] - fd.m[b, 0]) / Mo
+            for i in range(3):
+                fd.wk[b, A_SLOT, i, j] = dp[i] / h[j]
+                fd.wk[b, A_SLOT, 3 + i, j] = eta[i] / h[j]
+                fd.wk[b, X_SLOT, i, j] = dn[i] / h[j]
+                fd.wk[b, X_SLOT, 3 + i, j] = dm[i] / h[j]
+
+    return SimpleNamespace(field=field, orthonormalise=orthonormalise, state_fields=state_fields)
+
+
+@functools.cache
+def make_restart(dtype, integrator: str, model: str, rod: str, features: Features):
+    """``restart``: the fields of a split rod carried over a node: the probes start again from
+    the solution plus a small multiple of an orthonormal basis of the fields' plane (the same
+    plane: the phases go on), so that fields that grow along the rod (a long contact: like
+    exp(2 beta l)) stay resolved; at a segment's start the solution from the solved shape."""
+    v = _shared(dtype, integrator, model, rod, features)
+    vec3, nu, vecu, Model, Control, Step, Fields, keep, rf = (v.vec3, v.nu, v.vecu, v.Model, v.Control, v.Step,
+                                                              v.Fields, v.keep, v.rf)
+    Nodes = make_nodes(dtype, False, features.tendons > 0).Nodes
+    ys = make_state_basis(dtype, integrator, model, rod, features)
+    field = ys.field
+    mat33 = wp.types.matrix((3, 3), dtype)
+    half = dtype(0.5)
+    stages = STAGES[integrator]
+
+    @wp.func
+    def restart(md: Model, ct: Control, sp: Step, fd: Fields, nd: Nodes, b: int, x: vecu, h: vecu, k1: int,
+                s1: dtype, step: dtype, anchor: int):
+        """The probes restarted past node k1 from the solution plus ``step`` (scaled units) times
+        an orthonormal basis of the fields; with ``anchor`` the solution first restarted from the
+        stored shape (its jumps at k1 applied). Returns the probes' new steps."""
+        ir = rf.row(b, md.rod)
+        L = md.rod[ir, LENGTH]
+        F = md.rod[ir, FORCE_SCALE]
+        Mo = md.rod[ir, MOMENT_SCALE]
+        ys.state_fields(fd, b, h, L, F, Mo)
+        ys.orthonormalise(fd.wk, b)
+        p = fd.p[b, 0]
+        R = fd.R[b, 0]
+        n = fd.n[b, 0]
+        m = fd.m[b, 0]
+        E = fd.E[b, 0]
+        if anchor != 0:
+            js = (md.grid.shape[1] - 1) * stages + 2 * k1
+            p = nd.p[b, k1]
+            R = nd.R[b, k1]
+            n, m, E = rf.node_jumps(md, ct, sp, b, s1, p, R, nd.n[b, k1], nd.m[b, k1], vec3(), vec3(),
+                                    rf.base_tensions(md, ct, b, x), E, k1, js, js + 1, 0)
+            keep(fd, b, 0, p, R, n, m, E)
+        for j in range(6):
+            y = vec3(field(fd.wk, 3, b, j), field(fd.wk, 4, b, j), field(fd.wk, 5, b, j)) * step
+            K = mat33(dtype(0.0), -y[2], y[1], y[2], dtype(0.0), -y[0], -y[1], y[0], dtype(0.0))
+            turn = wp.identity(3, dtype) + K + half * K * K  # exp(K) to O(step^3)
+            dp = vec3(field(fd.wk, 0, b, j), field(fd.wk, 1, b, j), field(fd.wk, 2, b, j)) * (step * L)
+            dn = vec3(field(fd.wk, 6, b, j), field(fd.wk, 7, b, j), field(fd.wk, 8, b, j)) * (step * F)
+            dm = vec3(field(fd.wk, 9, b, j), field(fd.wk, 10, b, j), field(fd.wk, 11, b, j)) * (step * Mo)
+            keep(fd, b, j + 1, p + dp, turn * R, n + dn, m + dm, E)
+        hn = vecu()
+        for j in range(nu):
+            hn[j] = step
+        return hn
+
+    return SimpleNamespace(restart=restart, Nodes=Nodes)
+
+
+@functools.cache
+def make_shear(dtype, integrator: str, model: str, rod: str, features: Features):
+    """``shear``: the disk model's jump at a disk followed as a path of planes (U, V + t D), t from
+    0 to 1, D the jump of V: the chords' pull at a disk depends on its holes' positions, a stiffness
+    that moves the phases at once (a single disk's, whose chords come from the fixed base plate: a
+    conservative point load, D = K U with K symmetric; tdcr_warp/physics/stability.py)."""
+    v = _shared(dtype, integrator, model, rod, features)
+    vec6, vecu, Fields, fl = v.vec6, v.vecu, v.Fields, v.fl
+    ch, tk = make_charts(dtype), make_tracking(dtype)
+    zero = dtype(0.0)
+    frac = dtype(1.0 / SHEAR_STEPS)
+
+    @wp.func
+    def shear(fd: Fields, b: int, h: vecu, sc: vec6, cs: vec6, beta: dtype, cur: vec6, lift: vec6):
+        """The phases tracked from V before the jumps (in its slot) to V past them (the kept states);
+        returns the chart, the phases, the lifts and the largest move."""
+        p0 = fd.p[b, 0]
+        R0 = fd.R[b, 0]
+        for j in range(6):
+            _dp, _eta, dN, dM = fl.column(p0, R0, fd.n[b, 0], fd.m[b, 0], fd.p[b, j + 1], fd.R[b, j + 1],
+                                          fd.n[b, j + 1], fd.m[b, j + 1], h[j], sc)
+            for i in range(3):
+                fd.wk[b, D_SLOT, i, j] = (dN[i] * cs[j] - fd.wk[b, V_SLOT, i, j]) * frac
+                fd.wk[b, D_SLOT, 3 + i, j] = (dM[i] * cs[j] - fd.wk[b, V_SLOT, 3 + i, j]) * frac
+        jump = zero
+        for _t in range(wp.static(SHEAR_STEPS)):
+            for i in range(6):
+                for j in range(6):
+                    fd.wk[b, V_SLOT, i, j] = fd.wk[b, V_SLOT, i, j] + fd.wk[b, D_SLOT, i, j]
+            phi, beta = ch.phases(fd.wk, b, beta)
+            cur, lift, moved = tk.track(cur, lift, phi)
+            jump = wp.max(jump, moved)
+        return beta, cur, lift, jump
+
+    return shear
+
+
+@functools.cache
 def make_sweep(dtype, integrator: str, model: str, rod: str, features: Features):
     """``sweep``: the fields from the clamp to the tip over the steps of one pass, their phases
     tracked: the lifts at the tip and the largest move between two steps."""
     zero = dtype(0.0)
+    one = dtype(1.0)
     v = _shared(dtype, integrator, model, rod, features)
     vec6, vecu, Model, Control, Step, Fields, rf = v.vec6, v.vecu, v.Model, v.Control, v.Step, v.Fields, v.rf
     advance = make_advance(dtype, integrator, model, rod, features)
     ch, tk = make_charts(dtype), make_tracking(dtype)
+    rs = make_restart(dtype, integrator, model, rod, features)
+    splits = segmentable(model, features)  # a variant multiple shooting can split
+    disks = model == "disks"
+    shear = make_shear(dtype, integrator, model, rod, features)
 
     @wp.func
     def sweep(md: Model, ct: Control, sp: Step, fd: Fields, b: int, x0: vecu, h: vecu, sc: vec6, colscale: vec6,
-              stride: int):
+              stride: int, nd: rs.Nodes, restarts: wp.array2d(dtype=int), rel: dtype):
         """stride >= 2: up to ``stride`` intervals a step, stopping at every node something acts
-        on; 1: the full grid; <= -2: -stride steps an interval."""
+        on; 1: the full grid; <= -2: -stride steps an interval. ``restarts`` (B, N+1), per node (a
+        step takes the largest over the nodes it ends or passes): 1 the probes restart from the
+        solution (``restart``: an orthonormal basis of the fields, steps of ``rel``), 2 the
+        solution also from the solved shape ``nd`` (a segment's start); 0 neither."""
         n_int = md.grid.shape[1] - 1
         lift = vec6()  # the phases leave 0 at the clamp
         cur = vec6()
         beta = zero
         jump = zero
+        hs = h * one  # the probes' steps and the columns' scales (a restart resets them)
+        cs = colscale * one
         ig = rf.row(b, md.grid)
         parts = wp.max(-stride, 1)  # steps per interval
         k = int(0)  # noqa: UP018, RUF046 (a dynamic variable for Warp)
@@ -417,13 +578,24 @@ def make_sweep(dtype, integrator: str, model: str, rod: str, features: Features)
             s = md.grid[ig, k]
             ds = (md.grid[ig, k1] - s) / dtype(parts)
             at_node = wp.where(part + 1 == parts, 1, 0)
-            advance(md, ct, sp, fd, b, x0, h, sc, colscale, k, s + dtype(part) * ds,
+            advance(md, ct, sp, fd, b, x0, hs, sc, cs, k, s + dtype(part) * ds,
                     wp.where(at_node == 1, md.grid[ig, k1], s + dtype(part + 1) * ds), k1, at_node)
             phi, beta = ch.phases(fd.wk, b, beta)
             cur, lift, moved = tk.track(cur, lift, phi)
             jump = wp.max(jump, moved)
             part = part + 1
             if at_node == 1:
+                if wp.static(disks):
+                    if md.dnext[rf.row(b, md.dnext), k1] >= 0:  # a disk: its stiffness
+                        beta, cur, lift, moved = shear(fd, b, hs, sc, cs, beta, cur, lift)
+                        jump = wp.max(jump, moved)
+                if wp.static(splits):
+                    todo = int(0)  # noqa: UP018, RUF046
+                    for kk in range(k + 1, k1 + 1):
+                        todo = wp.max(todo, restarts[b, kk])
+                    if todo != 0 and k1 < n_int:
+                        hs = rs.restart(md, ct, sp, fd, nd, b, x0, hs, k1, md.grid[ig, k1], rel, todo - 1)
+                        cs = vec6(one / sc[1], one / sc[1], one / sc[1], one / sc[1], one / sc[1], one / sc[1])
                 k = k1
                 part = 0
         return lift, jump
@@ -438,7 +610,8 @@ def make_verdict_kernel(dtype, integrator: str, model: str, rod: str, features: 
     J = dr/dx by forward differences (the probes of the displaced tendons' tensions run beside,
     for the wires' correction on the host). stride >= 2: the fields are integrated over up to
     ``stride`` intervals a step, stopping at every node something acts on; 1: the full grid;
-    stride <= -2: -stride steps an interval (phases that turn too fast for the grid)."""
+    stride <= -2: -stride steps an interval (phases that turn too fast for the grid). nd: the
+    solved shape and restarts (B, N+1) the restarts of split rods (``sweep``; J is then meaningless)."""
     zero = dtype(0.0)
     one = dtype(1.0)
     v = _shared(dtype, integrator, model, rod, features)
@@ -450,6 +623,7 @@ def make_verdict_kernel(dtype, integrator: str, model: str, rod: str, features: 
     resid = make_residual(dtype, False, features.tendons, features.displaced)
     tk = make_tracking(dtype)
     module = module_names(dtype, integrator, model, False, rod, features)["evaluate"]
+    Nodes = make_nodes(dtype, False, features.tendons > 0).Nodes
 
     @wp.func
     def shooting_jacobian(md: Model, ct: Control, fd: Fields, b: int, x: vecu, h: vecu):
@@ -466,7 +640,8 @@ def make_verdict_kernel(dtype, integrator: str, model: str, rod: str, features: 
     def verdict_kernel(md: Model, ct: Control, sp: Step, x: wp.array(dtype=vecu), mask: wp.array(dtype=int),
                        rel: dtype, axial_strain: dtype, neutral: dtype, stride: int, fd: Fields,
                        jac: wp.array(dtype=matu), index: wp.array(dtype=int), margin: wp.array(dtype=dtype),
-                       lag: wp.array(dtype=dtype), jumps: wp.array(dtype=dtype)):
+                       lag: wp.array(dtype=dtype), jumps: wp.array(dtype=dtype), nd: Nodes,
+                       restarts: wp.array2d(dtype=int)):
         b = wp.tid()
         if mask[b] == 0:
             return
@@ -477,7 +652,7 @@ def make_verdict_kernel(dtype, integrator: str, model: str, rod: str, features: 
         a = wp.sqrt(md.rod[ir, KBT] / L)
         sc = vec6(a / L, a, L / a, one / a, zero, zero)  # symplectic scaling of [dp, eta, dN, dM]
         colscale = cl.clamp(md, ct, sp, fd, b, x0, h, sc)
-        lift, jump = sweep(md, ct, sp, fd, b, x0, h, sc, colscale, stride)
+        lift, jump = sweep(md, ct, sp, fd, b, x0, h, sc, colscale, stride, nd, restarts, rel)
         idx, mg = tk.verdict(lift, neutral)
         index[b] = idx
         margin[b] = mg

@@ -46,10 +46,11 @@ def test_displacement_example_reports_each_tendon(tmp_path):
     assert all(t["free_length"] > 0.49 for t in tendons)
 
 
-@pytest.mark.parametrize("name", ["friction_converging", "spline_route"])
-def test_tendon_examples_solve(tmp_path, name):
+@pytest.mark.parametrize("name,code", [("friction_converging", 3), ("spline_route", 0)])
+def test_tendon_examples_solve(tmp_path, name, code):
+    """Friction is not conservative: no stability verdict, exit status 3."""
     out = tmp_path / "out"
-    assert main(["static", str(EXAMPLES / f"{name}.toml"), "--out", str(out), "--no-figures"]) == 0
+    assert main(["static", str(EXAMPLES / f"{name}.toml"), "--out", str(out), "--no-figures"]) == code
     rod = json.loads((out / "results.json").read_text())["rods"][0]
     assert rod["converged"] and len(rod["tendons"]) == 2
 
@@ -141,6 +142,25 @@ def test_nonconverged_rod_exits_1_with_reason(tmp_path, capsys):
     assert "1 of 1 rods did not converge" in err and "iteration cap reached" in err, err
 
 
+def test_rods_without_a_stability_verdict_are_counted_and_exit_3(tmp_path, capsys):
+    """A converged rod the stability test cannot assess (here the point model's follower loads) is
+    counted apart from the successes, with its reason; with the test off nothing is counted."""
+    scene = write(tmp_path, two_tendon_scene("[[2.0, 0.5], [0.0, 0.0]]") + 'model = "point"\n')
+    assert main(["static", str(scene), "--out", str(tmp_path / "o"), "--no-figures"]) == 3
+    res = json.loads((tmp_path / "o" / "results.json").read_text())
+    reason = "point-model tendon loads (follower forces)"
+    assert (res["failed_rods"], res["unassessed_rods"], res["unassessed_reasons"]) == (0, 2, {reason: 2})
+    assert [r["stability"] for r in res["rods"]] == [f"not assessed: {reason}"] * 2
+    assert_documented(res)
+    err = capsys.readouterr().err
+    assert f"2 of 2 rods converged but their stability was not assessed: 2 x {reason}" in err, err
+    off = write(tmp_path, two_tendon_scene() + 'model = "point"\nstability = "off"\n', "off.toml")
+    assert main(["static", str(off), "--out", str(tmp_path / "p"), "--no-figures"]) == 0
+    assert json.loads((tmp_path / "p" / "results.json").read_text())["unassessed_rods"] == 0
+    failed = write(tmp_path, two_tendon_scene() + 'model = "point"\nmax_iter = 1\n', "failed.toml")
+    assert main(["static", str(failed), "--out", str(tmp_path / "q"), "--no-figures"]) == 1  # a failure first
+
+
 @pytest.mark.parametrize("edit,message", [
     (("length = 0.5\n", ""), "missing key 'length' in [robot]"),
     (("length = 0.5", "length = -1"), "length must be positive, got -1.0"),
@@ -167,7 +187,7 @@ def test_default_out_dir_and_overrides(tmp_path, monkeypatch):
     scene = write(tmp_path, BASE, "my_scene.toml")
     monkeypatch.chdir(tmp_path)
     assert main(["static", str(scene), "--nodes", "12", "--integrator", "euler", "--model", "point",
-                 "--precision", "float32", "--device", "cpu"]) == 0
+                 "--precision", "float32", "--device", "cpu"]) == 3  # point-model tendons: not assessed
     out = tmp_path / "out" / "my_scene"
     for name in ("results.json", "shapes.npz", "shapes.png"):
         assert (out / name).exists(), name

@@ -208,7 +208,7 @@ def test_hostile_scenes_end_cleanly(tmp_path, scene, capsys):
         (out / "results.json").unlink()
     rc = main(["static", str(path), "--out", str(out)])
     err = capsys.readouterr().err
-    assert rc in (0, 1, 2)
+    assert rc in (0, 1, 2, 3)  # 3: converged, stability not assessed
     assert "Traceback" not in err
     if rc == 2:
         assert err.startswith("tdcr-warp: error: ") and not (out / "results.json").exists()

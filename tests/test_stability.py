@@ -185,3 +185,90 @@ def test_the_verdict_kernels_load_before_the_chunks_threads(monkeypatch):
     assert events.count("load evaluate") == 2 and events.index("threads 2") > max(
         i for i, e in enumerate(events) if e == "load evaluate")  # one per chunk's Shooting, all before
     assert (sol.stability_index == 0).all()
+
+
+@pytest.mark.parametrize("segments", [2, 5, 8])
+def test_a_split_euler_column_gets_the_verdict_of_single_shooting(segments):
+    """Solved in segments (multiple shooting), the straight cantilever keeps Euler's counts: its
+    Jacobi fields are carried over the segments' starts (kernels/jacobi.py, ``restart``) and
+    their phases are those of single shooting's fields to round-off."""
+    loads = [0.5, 0.999, 1.001, 5.0, 8.99, 9.01]
+    one = tw.solve_static(robot(loads), nodes=40, rod="kirchhoff", tol=1e-12)
+    split = tw.solve_static(robot(loads), nodes=40, rod="kirchhoff", tol=1e-12, segments=segments)
+    assert split.converged.all() and (split.segments == segments).all()
+    assert split.stability_index.tolist() == one.stability_index.tolist() == [0, 0, 2, 2, 2, 4]
+    assert np.abs(split.stability_margin - one.stability_margin).max() < 1e-9
+    assert split.lagrangian_error.max() < 1e-5
+    assert split.success.tolist() == [True, True, False, False, False, False]
+    assert split.stability_reasons()[2] == "unstable: 2 directions"
+
+
+def test_split_rods_under_tension_keep_their_fields_resolved():
+    """A cantilever under a dead tension is stable at any load. Its Jacobi fields grow like
+    exp(lambda s): from lambda L = 31 single shooting's probes, run base to tip, lose them (not
+    assessed); a split rod's, restarted at every node from an orthonormal basis, keep them. At
+    lambda L = 63 on double steps and at 126 on the full grid (lambda times the step: 3.1) phases
+    ran backwards to a count of -2, which is no count: finer passes give 0."""
+    loads = [-100.0, -400.0, -1600.0, -6400.0]  # lambda L = 15.7, 31.4, 62.8, 125.7
+    one = tw.solve_static(robot(loads), nodes=40, rod="kirchhoff", tol=1e-10)
+    split = tw.solve_static(robot(loads), nodes=40, rod="kirchhoff", tol=1e-10, segments=8)
+    assert one.converged.all() and split.converged.all()
+    assert one.stability_index.tolist() == [0, -1, -1, -1]
+    assert split.stability_index.tolist() == [0, 0, 0, 0] and split.success.all()
+    assert split.lagrangian_error.max() < 1e-9
+
+
+def test_a_split_rods_verdict_does_not_depend_on_its_batch():
+    alone = tw.solve_static(robot([1.001]), nodes=40, rod="kirchhoff", tol=1e-12, segments=4)
+    batch = tw.solve_static(robot([0.5, 1.001, -1600.0, 9.01]), nodes=40, rod="kirchhoff", tol=1e-12, segments=4)
+    assert batch.stability_index.tolist() == [0, 2, 0, 4]
+    for key in ("stability_index", "stability_margin", "lagrangian_error", "positions"):
+        assert np.array_equal(getattr(alone, key)[0], getattr(batch, key)[1]), key
+
+
+def tip_disk(loads, offset):
+    """One rod per tendon tension in ``loads`` [units of P_CR] under the disk model: a single disk,
+    at the tip, and the tendon at ``offset`` [m] along x, from the base plate straight to it."""
+    rod = tw.Robot(length=L, youngs_modulus=E, poisson_ratio=NU, radius=RB, density=0.0,
+                   tendons=(tw.Tendon(offset=(offset, 0.0)),), disks=(L,))
+    return tw.solve_static(rod, np.asarray(loads)[:, None] * P_CR, nodes=40, model="disks", rod="kirchhoff",
+                           tol=1e-12, continuation=0)
+
+
+def test_a_single_tip_disk_buckles_the_column_like_a_load_through_the_base():
+    """The chord pulls the tip toward the fixed hole in the base plate: a load through a fixed
+    point, whose line turns with the tip (a lateral stiffness tau / L there), buckles the rod at
+    tau = pi^2 EI / L^2 = 4 P_CR (EI w'' = tau (w(L) s / L - w): sin(kL) = 0), not at P_CR as a
+    dead load does. The disk's jump of the fields is followed as a stiffness (kernels/jacobi.py,
+    ``shear``)."""
+    sol = tip_disk([0.5, 2.0, 3.9, 4.1, 6.0], 0.0)
+    assert sol.converged.all() and np.abs(sol.tip_position[:, :2]).max() < 1e-12
+    assert sol.stability_index.tolist() == [0, 0, 0, 2, 2]
+    assert sol.success.tolist() == [True, True, True, False, False] and sol.assessed.all()
+    assert sol.lagrangian_error.max() < 1e-6
+
+
+def test_a_single_tip_disk_with_an_offset_tendon_is_an_eccentric_column():
+    """With the tendon r off the axis the chord's line runs from (r, 0) to the tip's hole: EI w'' =
+    tau (r + w(L) s / L - w), so w(L) = r kL tan(kL / 2) (k^2 = tau / EI; small deflections): bent
+    toward the tendon below the load, stable; past it (kL > pi) the equilibrium from the straight
+    start bends the other way, unstable in that plane and, nearly straight, in the other (index 2).
+    Measured at r = 0.1 mm: 1.5e-12 m apart at 0.5 P_CR, 4e-10 m at 2, 2e-9 m at 6; near the load
+    (tips of 16 mm) 0.6% (the large deflections' terms)."""
+    loads = np.array([0.5, 2.0, 3.9, 4.1, 6.0])
+    r = 1e-4
+    sol = tip_disk(loads, r)
+    kL = np.sqrt(loads * P_CR / EI) * L
+    assert sol.converged.all() and sol.stability_index.tolist() == [0, 0, 0, 2, 2]
+    err = np.abs(sol.tip_position[:, 0] - r * kL * np.tan(kL / 2))
+    assert err[[0, 1, 4]].max() < 1e-8, err
+    assert (err[[2, 3]] / np.abs(sol.tip_position[[2, 3], 0])).max() < 0.01, err
+
+
+def test_the_disk_model_with_more_disks_is_not_assessed():
+    rod = tw.Robot(length=L, youngs_modulus=E, poisson_ratio=NU, radius=RB, density=0.0,
+                   tendons=(tw.Tendon(offset=(0.01, 0.0)),), disks=(L / 2, L))
+    sol = tw.solve_static(rod, [[1.0]], nodes=20, model="disks")
+    assert sol.converged.all() and sol.success.all() and not sol.assessed.any()
+    assert sol.stability_reasons() == [
+        "not assessed: disk model with more than one disk (a chord's pull depends on both holes it joins)"]

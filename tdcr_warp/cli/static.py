@@ -74,24 +74,45 @@ def _run(args, scene, scene_s: float, out: OutputRun) -> int:
     drawn = not args.no_figures and _plot(scene, sol, out)
     html = args.html and _html(scene, sol, out)
     failed = ~sol.success  # not converged, or an unstable equilibrium
+    unassessed = np.zeros(B, dtype=bool) if sol.assessed is None else sol.success & ~sol.assessed
     results = {
         "scene": str(args.scene), "settings": settings(scene, args.device or "default"),
         "batch_size": B, "wall_time_s": wall, "kernel_load_s": load_s, "scene_load_s": scene_s, "write_s": write_s,
         "converged_rods": int(sol.converged.sum()), "unstable_rods": int((sol.converged & failed).sum()),
         "failed_rods": int(failed.sum()),
-        "failure_reasons": dict(Counter(reasons[b] for b in np.flatnonzero(failed))), "files": files,
+        "failure_reasons": dict(Counter(reasons[b] for b in np.flatnonzero(failed))),
+        "unassessed_rods": int(unassessed.sum()), "unassessed_reasons": _unassessed_reasons(sol, unassessed),
+        "files": files,
     } | (_rods_json(sol, reasons) if small else {})
     write_json(out / "results.json", results)
     out.commit()  # results.json last: its presence means the run is complete
     print(f"wrote {out}/results.json, {', '.join(files)}{', shapes.png' if drawn else ''}")
     if html:
         print(f"wrote {out}/{html}")
-    if failed.any():
-        why = ", ".join(f"{n} x {reason}" for reason, n in results["failure_reasons"].items())
-        print(f"tdcr-warp: {int(failed.sum())} of {B} rods did not converge or are unstable: {why} (per rod in "
-              f"{'results.json' if small else ROD_TABLE})", file=sys.stderr)
-        return 1
-    return 0
+    return _exit_status(results, B, ROD_TABLE if not small else "results.json")
+
+
+def _unassessed_reasons(sol, unassessed: np.ndarray) -> dict:
+    """How many of the ``unassessed`` rods (B,) bool the stability test left out, per reason."""
+    if not unassessed.any():
+        return {}
+    text = sol.stability_reasons()
+    return dict(Counter(text[b].removeprefix("not assessed: ") for b in np.flatnonzero(unassessed)))
+
+
+def _exit_status(results: dict, B: int, where: str) -> int:
+    """1 if a rod failed (not converged, unstable, through an obstacle), else 3 if a rod that
+    converged has no stability verdict (never counted a plain success), else 0; each count and
+    its reasons on stderr."""
+    status = 0
+    for key, reasons, what, code in (("failed_rods", "failure_reasons", "did not converge or are unstable", 1),
+                                     ("unassessed_rods", "unassessed_reasons",
+                                      "converged but their stability was not assessed", 3)):
+        if results[key]:
+            why = ", ".join(f"{n} x {reason}" for reason, n in results[reasons].items())
+            print(f"tdcr-warp: {results[key]} of {B} rods {what}: {why} (per rod in {where})", file=sys.stderr)
+            status = status or code
+    return status
 
 
 def _status_words(status: np.ndarray) -> list[str]:

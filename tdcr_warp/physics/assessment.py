@@ -43,8 +43,8 @@ class Assessor:
             return "point-model tendon loads (follower forces)"
         if self.tables.features.tip:
             return "a constrained tip (the test covers a free tip)"
-        if self.opts.model == "disks":
-            return "disk model (a chord's pull depends on both holes it joins: not a load the test covers)"
+        if self.opts.model == "disks" and len(self.robot.disks) > 1:
+            return "disk model with more than one disk (a chord's pull depends on both holes it joins)"
         return ""
 
     def assess(self, sh: Shooting, lo: int, hi: int, tau: np.ndarray, taut: np.ndarray, res: dict,
@@ -72,7 +72,7 @@ class Assessor:
             else:
                 if id(sh) not in self.verdicts:
                     self.verdicts[id(sh)] = Verdict(sh, t, o.precision, sh.verdict_strides)
-                v = self.verdicts[id(sh)](ok, taut if t.features.displaced else None)
+                v = self.verdicts[id(sh)](ok, taut if t.features.displaced else None, res["segments"])
                 out |= {k: v[k] for k in ("stability_index", "lagrangian_error", "stability_margin")}
                 out["integrations"] = out["integrations"] + np.where(ok, 1 + t.nu, 0)
         return out
@@ -105,7 +105,7 @@ class Assessor:
             it, sn = sh.counts()
             out["iterations"] = out["iterations"] + np.where(bad, it, 0)
             out["integrations"] = out["integrations"] + np.where(bad, sn, 0)
-            got = sh.results()
+            got = sh.results() | {"segments": np.ones(b, dtype=int)}  # single shooting's restarts
             got |= self.assess(sh, lo, hi, tau, taut, got, ptables, sensitivities, "check")
             ok = bad & got["converged"] & (got["stability_index"] == 0)
             for i in np.flatnonzero(ok):

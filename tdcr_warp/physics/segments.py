@@ -33,7 +33,7 @@ from tdcr_warp.kernels import layout
 from tdcr_warp.kernels.banded import band_solve, band_widths
 from tdcr_warp.kernels.segments import STATE, make_segment_kernel
 
-__all__ = ["Segments", "growth", "rodrigues", "segments_needed", "single_shooting_warning"]
+__all__ = ["Segments", "growth", "rodrigues", "segment_bounds", "segments_needed", "single_shooting_warning"]
 
 PROBE = 1e-8  # the central differences' step, per scaled unknown (1e-6 straddles the contact law's band at rigid
 # stiffness, ~1e-9 m wide: the climbs of a bent tube failed at 80 segments; 1e-8 passed them at 40)
@@ -89,6 +89,12 @@ def single_shooting_warning(robot, precision: str, dt: float, c_ratio: float) ->
     return (f"dt = {dt:g} s is below the single-shooting limit of {int(np.sum(g > limit))} rod(s) (rod {worst}: "
             f"amplification {amp}; dt >= {math.exp(hi):.1e} s stays inside): steps may fail, and are then flagged "
             "(segments = None splits a rod into as many as it needs, where its variant allows)")
+
+
+def segment_bounds(n_int: int, count: int) -> np.ndarray:
+    """(count + 1,) the nodes that split a grid of n_int intervals into ``count`` segments: the
+    first node of each, then n_int."""
+    return np.round(np.linspace(0, n_int, count + 1)).astype(np.int32)
 
 
 def rodrigues(theta: np.ndarray) -> np.ndarray:
@@ -244,7 +250,7 @@ class Segments(SegmentUnknowns):
         n_int = sh.n1 - 1
         if not 2 <= count <= n_int:
             raise ValueError(f"segments must be between 2 and the interval count {n_int}, got {count}")
-        bounds = np.round(np.linspace(0, n_int, count + 1)).astype(np.int32)
+        bounds = segment_bounds(n_int, count)
         super().__init__(np.broadcast_to(rod, (sh.b, rod.shape[1])), bounds, c0, sh.dynamic)
         self.sh, self.wdt = sh, sh.dev.wdtype
         self.kernel = make_segment_kernel(*sh.variant)

@@ -31,11 +31,17 @@ Displacement control adds the stiffness of the wires: the second variation gains
 tensions less the count of positive eigenvalues of the Schur complement of the taut tendons'
 length residuals (Haynsworth inertia additivity; the complement is -(A Q^-1 A^T + c l) up to a
 positive factor). Not assessed (index -1): friction (not conservative) and the point model's
-tendon loads (follower forces), and the disk model: its chords are conservative (a tendon's
-energy is its tension times the sum of its chords' lengths), but each chord's pull depends on
-the positions of both holes it joins, terms of the second variation that the Jacobi fields of
-a local load along s leave out (measured: a single disk at the tip, which buckles the rod like a
-column at tau = pi^2 EI / L^2, comes out stable beyond it).
+tendon loads (follower forces). The disk model's chords are conservative (a tendon's energy is
+its tension times the sum of its chords' lengths); with a single disk each chord runs from the
+fixed base plate to it, a point load of that disk's position alone, whose stiffness jumps V at the
+disk (kernels/jacobi.py, ``shear``: followed as a path of planes so that the phases move with it).
+With more disks a chord's pull depends on the positions of both holes it joins, a coupling of the
+fields at two disks that a sweep from the clamp leaves out: not assessed.
+
+A rod solved in segments (multiple shooting) has its fields carried over the segments by the same
+kernel (``restart_nodes``): at every node a pass reaches the probes restart from the solution and
+an orthonormal basis of the fields (the same plane), at each segment's start the solution from the
+solved shape.
 """
 
 from __future__ import annotations
@@ -46,9 +52,10 @@ import warp as wp
 from tdcr_warp.core.build import Tables
 from tdcr_warp.core.launch import Mirror, Replay
 from tdcr_warp.kernels import layout
+from tdcr_warp.physics.segments import segment_bounds
 from tdcr_warp.physics.sensitivity import AXIAL_STRAIN, PROBE_REL
 
-__all__ = ["NEUTRAL", "Verdict", "wires_stabilised"]
+__all__ = ["NEUTRAL", "Verdict", "restart_nodes", "wires_stabilised"]
 
 WIRE_TOL = 1e-6  # relative size of a positive eigenvalue of the wires' Schur complement
 NEUTRAL = 1e-6  # rad: a tip phase this close to an odd multiple of pi/2 is a zero mode, not unstable
@@ -94,18 +101,20 @@ class Verdict:
         fd = self.fields = k.Fields()  # the trajectories' states and work matrices, per rod
         fd.p, fd.R, fd.n, fd.m = (wp.empty((b, nt), dtype=t, device=dev) for t in (k.vec3, k.mat33, k.vec3, k.vec3))
         fd.E = wp.empty((b, nt), dtype=k.evec, device=dev)
-        fd.wk = wp.empty((b, 4, 6, 6), dtype=wdt, device=dev)  # U, V and two work matrices
+        fd.wk = wp.empty((b, 5, 6, 6), dtype=wdt, device=dev)  # U, V, two work matrices, a disk's jump of V
         self.index = wp.zeros(b, dtype=int, device=dev)
         self.margin = wp.zeros(b, dtype=wdt, device=dev)
         self.lag = wp.zeros(b, dtype=wdt, device=dev)
         self.jac = wp.zeros(b, dtype=k.matu, device=dev)
         self.jumps = wp.zeros(b, dtype=wdt, device=dev)
+        self.restarts = wp.zeros((b, tables.grid.shape[1]), dtype=int, device=dev)
+        self.host = {"restarts": Mirror(self.restarts, np.float64)}  # (set per call: the rods' segments)
         names = ("mask", "index", "margin", "lag", "jac", "jumps")
-        self.host = {name: Mirror(getattr(self, name), np.float64) for name in names}
+        self.host |= {name: Mirror(getattr(self, name), np.float64) for name in names}
         self.strides = passes(strides, tables.grid.shape[1] - 1)
         self.args = [sh.model, sh.control, sh.step, sh.newton.x, self.mask, wdt(PROBE_REL[precision]),
                      wdt(AXIAL_STRAIN[precision]), wdt(NEUTRAL), 1, fd, self.jac, self.index,
-                     self.margin, self.lag, self.jumps]
+                     self.margin, self.lag, self.jumps, sh.nodes, self.restarts]
         self.launch = Replay(k.verdict, b, dev)
 
     def _run(self, mask: np.ndarray, stride: int) -> np.ndarray:
@@ -114,18 +123,24 @@ class Verdict:
         self.host["mask"].put(mask.astype(np.int32))
         self.args[STRIDE_ARG] = stride
         self.launch(*self.args)
-        trusted = self.host["jumps"].get(np.float64) <= JUMP_MAX
+        # a negative count (phases that ran backwards: the Legendre condition broken by steps too
+        # long for the fields, e.g. a rod under a tension of 1600 P_cr on 40 intervals) is no count
+        trusted = (self.host["jumps"].get(np.float64) <= JUMP_MAX) & (self.host["index"].get(np.int64) >= 0)
         if stride >= 2:
             margin = self.host["margin"].get(np.float64)
             trusted &= (margin >= REFINE_MARGIN) & (self.host["lag"].get(np.float64) <= LAG_TRUST * margin)
         return mask & ~trusted
 
-    def __call__(self, converged: np.ndarray, taut: np.ndarray | None) -> dict[str, np.ndarray]:
+    def __call__(self, converged: np.ndarray, taut: np.ndarray | None, segments: np.ndarray) -> dict[str, np.ndarray]:
         """Per rod: ``stability_index`` (0 stable, -1 not converged), ``lagrangian_error``,
         ``stability_margin`` (the smallest distance [rad] of a tip phase from the boundary of
         the count; NaN where no pass could be trusted, index -1) and the shooting Jacobian
         ``unknowns_jacobian`` at x* (forward differences, over the steps of the pass that decided).
-        taut (b, K) or None: the taut displaced tendons (the wires' correction, ``wires_stabilised``)."""
+        taut (b, K) or None: the taut displaced tendons (the wires' correction, ``wires_stabilised``).
+        segments (b,) int: the segments each rod was solved in (``restart_nodes``; a split rod has
+        no Jacobian here: NaN)."""
+        split = segments > 1
+        self.host["restarts"].put(restart_nodes(segments, self.restarts.shape[1] - 1))
         todo = converged.astype(bool)
         for stride in self.strides:
             todo = self._run(todo, stride)
@@ -134,12 +149,26 @@ class Verdict:
         index = np.where(converged & ~todo, self.host["index"].get(np.int64), -1)
         lag = np.where(converged, self.host["lag"].get(np.float64), np.nan)
         margin = np.where(converged & ~todo, self.host["margin"].get(np.float64), np.nan)
-        jac = self.host["jac"].get(np.float64)
+        jac = np.where(split[:, None, None], np.nan, self.host["jac"].get(np.float64))
         if taut is not None and taut.any():
             wires = wires_stabilised(jac, self.tables, taut, converged)
             index = np.where(converged & (wires >= 0) & (index >= 0), index - wires, -1)
         return {"stability_index": index, "lagrangian_error": lag, "stability_margin": margin,
                 "unknowns_jacobian": jac}
+
+
+def restart_nodes(segments: np.ndarray, n_int: int) -> np.ndarray:
+    """(b, n_int + 1) int32, per node of a rod solved in segments (b,) > 1 (kernels/jacobi.py,
+    ``restart``): 1 where the probes restart from the solution with an orthonormal basis of the
+    fields (every node: fields that grow along the rod stay resolved), 2 at the later segments'
+    starts, where the solution also restarts from the solved shape; 0 for the rods of single
+    shooting (their fields run base to tip undisturbed)."""
+    out = np.zeros((len(segments), n_int + 1), dtype=np.int32)
+    for count in np.unique(segments[segments > 1]):
+        rods = segments == count
+        out[rods] = 1
+        out[np.ix_(rods, segment_bounds(n_int, int(count))[1:-1])] = 2
+    return out
 
 
 def wires_stabilised(J: np.ndarray, tables: Tables, taut: np.ndarray, rods: np.ndarray) -> np.ndarray:

@@ -90,7 +90,8 @@ class StaticSolution(RodRows):
     parameter_jacobian (B, 6, P) d pose / d parameter (units of each parameter, ``parameter_names``). Stability
     (on by default; None with ``stability="off"``): stability_index (B,) the number of unstable directions (0:
     stable; -1: not assessed: not converged, for the whole batch ``stability_note``: friction, point-model
-    tendons, or a rod whose phases turn too fast even on 16 steps an interval; ``stability_reasons`` says which);
+    tendons, disks, or a rod whose phases turn too fast even on 16 steps an interval; ``stability_reasons`` says
+    which, ``assessed`` (B,) bool which rods have a verdict);
     lagrangian_error (B,) the check of the test (small: trustworthy); stability_margin (B,) [rad] how far the rod
     is from a change of the count (small: near a buckling load; see ``stability_reasons``); with "stable" also
     branch (B,) int8 (0: as solved, 1: the solve landed on an unstable equilibrium and a restart found this stable
@@ -104,7 +105,8 @@ class StaticSolution(RodRows):
     obstacle was solved with [N/m per m]; ``penetration`` (B, O) the deepest penetration of each [m], at a node or
     between two; a rigid one beyond ``contact_tolerance`` flags PENETRATION. With a constrained tip: tip_reaction (B, 3) the force it takes [N]
     (world). segments (B,) int: the segments of multiple shooting each rod was solved in (1: single shooting;
-    ``StaticOptions.segments``); a split rod's sensitivities are NaN and its stability is not assessed.
+    ``StaticOptions.segments``); a split rod's sensitivities are NaN (its stability verdict carries the Jacobi
+    fields over the segments: tdcr_warp/physics/stability.py).
 
     Per tendon (B, K): tendon_tension_base (at the motor side, s = 0) and tendon_tension_end (just before its
     termination) [N]. With tendon states (displacement control or friction; None otherwise): tendon_path_length,
@@ -171,9 +173,15 @@ class StaticSolution(RodRows):
     @property
     def success(self) -> np.ndarray:
         """(B,) bool: converged, not found unstable and not through an obstacle (an unstable
-        equilibrium or an unresolved contact is never a success;
-        a rod the test could not assess counts as converged, see ``stability_reasons``)."""
+        equilibrium or an unresolved contact is never a success). A rod the test could not assess
+        is a success of the solve whose stability is unknown: ``assessed`` says so (False), and
+        ``tdcr-warp static`` counts it apart (exit status 3)."""
         return self.converged & ((self.status & (layout.UNSTABLE | layout.PENETRATION | layout.CROSSED)) == 0)
+
+    @property
+    def assessed(self) -> np.ndarray | None:
+        """(B,) bool: the rod has a stability verdict (index >= 0; else ``stability_reasons`` says why)."""
+        return None if self.stability_index is None else self.stability_index >= 0
 
     def stability_reasons(self) -> list[str] | None:
         """One string per rod: "stable", "unstable: k directions", or why it was not assessed
@@ -182,11 +190,10 @@ class StaticSolution(RodRows):
             return None
         return ["stable" if i == 0 else f"unstable: {i} directions" if i > 0 else
                 "not assessed: not converged" if not ok else f"not assessed: {self.stability_note}" if self.stability_note
-                else "not assessed: solved by multiple shooting (the test integrates base to tip)" if split
                 else "not assessed: the phases turn too fast for the grid (raise nodes)" if np.isnan(margin)
                 else "not assessed: the wires' stiffness is singular here (a bifurcation point)"
-                for i, ok, margin, split in zip(self.stability_index.tolist(), self.converged.tolist(),
-                                                self.stability_margin.tolist(), (self.segments_or_one > 1).tolist())]
+                for i, ok, margin in zip(self.stability_index.tolist(), self.converged.tolist(),
+                                         self.stability_margin.tolist())]
 
     @property
     def segments_or_one(self) -> np.ndarray:
@@ -517,15 +524,12 @@ def armed_segments(tables: Tables, opts: StaticOptions) -> int | None:
 
 
 def _not_linearised(res: dict, rods: np.ndarray) -> dict:
-    """``res`` with the sensitivities and the stability verdict of ``rods`` (b,) marked not
-    assessed (NaN, index -1): their probes integrate base to tip, which multiple shooting
-    split them to avoid."""
-    for k in ("tip_jacobian", "tip_compliance", "tension_jacobian", "slack_jacobian", "parameter_jacobian",
-              "lagrangian_error", "stability_margin"):
+    """``res`` with the sensitivities of ``rods`` (b,) marked not computed (NaN): their probes
+    integrate base to tip, which multiple shooting split them to avoid (the stability verdict
+    carries its fields over the segments: tdcr_warp/physics/stability.py)."""
+    for k in ("tip_jacobian", "tip_compliance", "tension_jacobian", "slack_jacobian", "parameter_jacobian"):
         if k in res:
             res[k] = np.where(rods.reshape((-1,) + (1,) * (res[k].ndim - 1)), np.nan, res[k])
-    if "stability_index" in res:
-        res["stability_index"] = np.where(rods, -1, res["stability_index"])
     return res
 
 
