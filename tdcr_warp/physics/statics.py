@@ -66,6 +66,11 @@ class RodRows:
             out[k] = v
         return replace(self, **out)
 
+    def to_npz(self, path) -> None:
+        """Every array field into a compressed NumPy archive ``path``."""
+        arrays = {k: v for k, v in asdict(self).items() if isinstance(v, np.ndarray)}
+        np.savez_compressed(path, **arrays)
+
 
 @dataclass
 class StaticSolution(RodRows):
@@ -100,13 +105,13 @@ class StaticSolution(RodRows):
 
     With obstacles (None otherwise; tdcr_warp/physics/contact.py): contact_force (B, N+1, 3) the obstacles' point
     force on each node [N] (world frame; n jumps by it there), contact_gap (B, N+1, O) each node's gap to each
-    obstacle [m] (negative: penetration), interval_gap (B, N, O) the smallest gap along each interval between
-    two nodes [m] (the centre line checked between the nodes), contact_stiffness (B, O) the penalty stiffness each
+    obstacle [m] (negative: penetration), interval_gap (B, N, O) the smallest gap along each interval between two
+    nodes [m] (the centre line checked between the nodes), contact_stiffness (B, O) the penalty stiffness each
     obstacle was solved with [N/m per m]; ``penetration`` (B, O) the deepest penetration of each [m], at a node or
-    between two; a rigid one beyond ``contact_tolerance`` flags PENETRATION. With a constrained tip: tip_reaction (B, 3) the force it takes [N]
-    (world). segments (B,) int: the segments of multiple shooting each rod was solved in (1: single shooting;
-    ``StaticOptions.segments``); a split rod's sensitivities are NaN (its stability verdict carries the Jacobi
-    fields over the segments: tdcr_warp/physics/stability.py).
+    between two; a rigid one beyond ``contact_tolerance`` flags PENETRATION. With a constrained tip: tip_reaction (B,
+    3) the force it takes [N] (world). segments (B,) int: the segments of multiple shooting each rod was solved in (1:
+    single shooting; ``StaticOptions.segments``); a split rod's sensitivities are NaN (its stability verdict carries
+    the Jacobi fields over the segments: tdcr_warp/physics/stability.py).
 
     Per tendon (B, K): tendon_tension_base (at the motor side, s = 0) and tendon_tension_end (just before its
     termination) [N]. With tendon states (displacement control or friction; None otherwise): tendon_path_length,
@@ -202,11 +207,9 @@ class StaticSolution(RodRows):
 
     @property
     def penetration(self) -> np.ndarray | None:
-        """(B, O) the deepest penetration of each obstacle [m], at a node or between two (0 where
-        none; None without obstacles)."""
-        if self.contact_gap is None:
-            return None
-        return np.maximum(penetration(self.contact_gap), penetration(self.interval_gap))
+        """(B, O) the deepest penetration of each obstacle [m], nodes and intervals (None without obstacles)."""
+        return None if self.contact_gap is None else np.maximum(penetration(self.contact_gap),
+                                                                 penetration(self.interval_gap))
 
     @property
     def tip_position(self) -> np.ndarray:
@@ -219,10 +222,6 @@ class StaticSolution(RodRows):
     def failure_reasons(self) -> list[str]:
         """One string per rod: "converged" or why it failed."""
         return [describe_status(st) for st in self.status]
-
-    def to_npz(self, path) -> None:
-        arrays = {k: v for k, v in asdict(self).items() if isinstance(v, np.ndarray)}
-        np.savez_compressed(path, **arrays)
 
 
 def _constant_curvature(robot: Robot, tau: np.ndarray, opts: StaticOptions) -> StaticSolution:
