@@ -124,3 +124,18 @@ def test_property_successes_stay_outside_and_on_their_side():
     is not vacuous)."""
     successes = [check_scene(seed) for seed in range(24)]
     assert sum(successes) >= 12, successes
+
+
+def test_a_warm_start_is_checked_too():
+    """Warm-started at 0.2 N (short of the bar), the wire pulled by 2 N converged beyond the bar
+    (41 mm past its axis at its height) as a success; the warm start is checked from the unloaded
+    rod like a cold one: it rests on the bar's near side, and 5 N is flagged."""
+    rb = bar_robot()
+    start = solve_static(rb, np.array([[0.2]]), nodes=200)
+    for tension in (2.0, 5.0):
+        sol = solve_static(rb, np.array([[tension]]), nodes=200, initial=start)
+        p = sol.positions[0]
+        up = np.flatnonzero(p[:, 2] >= 0.15)
+        beyond = len(up) > 0 and p[up[0], 0] > 0.008
+        assert not (sol.success[0] and beyond)
+        assert (sol.success[0] and not beyond) if tension == 2.0 else sol.status[0] & layout.CROSSED

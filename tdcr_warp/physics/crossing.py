@@ -123,7 +123,7 @@ class _Path:
 
 
 def uncross(contact: Contact, loads: tuple, x0: np.ndarray, newton: dict, tolerance: float, steps: int) -> None:
-    """The rods of a cold solve's chunk that may have crossed a rigid sphere or capsule (see the
+    """The rods of a solve's chunk that may have crossed a rigid sphere or capsule (see the
     module) solved again along a load path (``_Path``), stiffened at every step (``tolerance``,
     ``steps``: the contact's); a rod whose path fails keeps its answer and is marked ``contact.crossed``.
     ``loads`` = (rod rows, point force rows, tensions, lengths or None): the chunk's loads, as

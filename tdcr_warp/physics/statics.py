@@ -403,7 +403,7 @@ class StaticProblem:
             _continue(self, sh, job, lo, hi, x0)
         if job.free is not None and not sh.converged().all():
             _hold(sh, tables, lo, hi, x0, newton)
-        segments = _contact_and_split(self, sh, lo, hi, contact, x0, newton, None if job.warm else _loads(tables, job, lo, hi))
+        segments = _contact_and_split(self, sh, lo, hi, contact, x0, newton, job)
         if len(self.disp):
             settle_slack(sh, taut, self.disp, self.j_of, newton)
         if job.profile is not None:
@@ -457,11 +457,17 @@ def _continue(problem: StaticProblem, sh: Shooting, job: _Job, lo: int, hi: int,
     the straight rod too (two-section robots at a few N, which converge from half their load)."""
     if job.warm and problem.opts.model != "disks":
         return
-    straight = problem.start(job.tau, job.avail)[lo:hi] if job.warm else x0
+    straight = _straight(problem, job, lo, hi, x0)
     finite, large, steps = continuation_steps(straight, problem.opts.continuation)
     redo = finite & (~sh.converged() | (large & (not job.warm)))
     if redo.any():
         load_continuation(sh, _loads(problem.tables, job, lo, hi), straight, redo, steps, job.newton)
+
+
+def _straight(problem: StaticProblem, job: _Job, lo: int, hi: int, x0: np.ndarray) -> np.ndarray:
+    """(b, nu) the straight-rod start of rods lo:hi (a load path's, linear in the loads): ``x0``
+    for a cold solve, worked out anew for a warm one."""
+    return problem.start(job.tau, job.avail)[lo:hi] if job.warm else x0
 
 
 def _loads(tables: Tables, job: _Job, lo: int, hi: int) -> tuple:
@@ -474,19 +480,19 @@ def _loads(tables: Tables, job: _Job, lo: int, hi: int) -> tuple:
 
 
 def _contact_and_split(problem: StaticProblem, sh: Shooting, lo: int, hi: int, contact: Contact | None,
-                       x0: np.ndarray, newton: dict, loads: tuple | None) -> np.ndarray:
+                       x0: np.ndarray, newton: dict, job: _Job) -> np.ndarray:
     """The contact of a solved chunk settled and stiffened (tdcr_warp/physics/contact.py; a rod
-    single shooting cannot carry up the climb split), a cold solve's rods that may have crossed a
-    rigid obstacle sent along a load path (``loads``: ``_loads``, tdcr_warp/physics/crossing.py;
-    None: a warm start, whose side is its own), then multiple shooting
+    single shooting cannot carry up the climb split), its rods that may have crossed a rigid
+    obstacle, warm starts included, sent along a load path from the unloaded rod
+    (tdcr_warp/physics/crossing.py), then multiple shooting
     (``StaticOptions.segments``, tdcr_warp/physics/segments.py): the rods whose contact is still
     unresolved (None), or every converged rod (M), solved again in segments from their last
     shapes and stiffened on; returns (b,) the segments each rod ends with (1: single shooting)."""
     if contact:
         contact.settle(x0, newton)
         contact.stiffen(problem.opts.contact_tolerance, problem.opts.contact_steps, newton)
-        if loads is not None:
-            uncross(contact, loads, x0, newton, problem.opts.contact_tolerance, problem.opts.contact_steps)
+        uncross(contact, _loads(problem.tables, job, lo, hi), _straight(problem, job, lo, hi, x0), newton,
+                problem.opts.contact_tolerance, problem.opts.contact_steps)
         lean_along(contact, problem.opts.contact_tolerance, problem.opts.contact_steps, newton)
     count, b = problem.armed, hi - lo
     ok, single = sh.converged(), np.ones(b, dtype=int)
