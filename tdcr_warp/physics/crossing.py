@@ -55,6 +55,17 @@ def _core(contact: Contact, start: tuple) -> np.ndarray:
     return sh.host(core).get(np.float64).min(axis=1)
 
 
+def _solve_again(sh, x: np.ndarray, rods: np.ndarray, newton: dict) -> None:
+    """``rods`` (b,) solved again from the unknowns ``x`` (b, nu), a fresh Jacobian; their
+    iterations and integrations add to those they had."""
+    if not rods.any():
+        return
+    iters, shots = sh.counts()
+    sh.solve(x, mask=rods, fresh_jacobian=True, **newton)
+    it, sn = sh.counts()
+    sh.set_counts(np.where(rods, iters + it, iters), np.where(rods, shots + sn, shots))
+
+
 def _solid(contact: Contact) -> np.ndarray:
     """(b, O) bool: the rigid spheres and capsules of each rod."""
     kind = contact.table[..., layout.OB_KIND]
@@ -144,11 +155,8 @@ def uncross(contact: Contact, loads: tuple, x0: np.ndarray, newton: dict, tolera
     with scaled_loads(sh, *loads) as set_load:
         walk.run(set_load, x0, newton, (tolerance, steps))
     it, sn = sh.counts()
-    if walk.failed.any():  # the answer as it was, flagged
-        sh.solve(answer, mask=walk.failed, fresh_jacobian=True, **newton)
-        it2, sn2 = sh.counts()
-        it, sn = np.where(walk.failed, it + it2, it), np.where(walk.failed, sn + sn2, sn)
     sh.set_counts(np.where(rods, iters + it, iters), np.where(rods, shots + sn, shots))
+    _solve_again(sh, answer, walk.failed, newton)  # the answer as it was, flagged
     contact.crossed |= walk.failed
 
 
@@ -168,14 +176,13 @@ def lean_along(contact: Contact, tolerance: float, steps: int, newton: dict) -> 
     rods = sh.converged() & reaching.any(axis=1)
     if not rods.any():
         return
-    answer, table, (iters, shots) = sh.host(sh.newton.x).get(), contact.table.copy(), sh.counts()
+    answer, table = sh.host(sh.newton.x).get(), contact.table.copy()
     before = (wp.clone(sh.nodes.p), wp.clone(sh.nodes.R))
     contact.table[..., layout.OB_ALONG] = np.where(rods[:, None] & solid, 1.0, table[..., layout.OB_ALONG])
     contact.table[rods, :, layout.OB_STIFF] *= ALONG_SOFT  # the law's point moves: from softer, climbed back
     sh.dev.put(sh.model.obst, contact.table)
-    sh.solve(answer, mask=rods, fresh_jacobian=True, **newton)
-    it, sn = sh.counts()
-    iters, shots = np.where(rods, iters + it, iters), np.where(rods, shots + sn, shots)
+    _solve_again(sh, answer, rods, newton)
+    iters, shots = sh.counts()
     contact.climb(rods & sh.converged(), table[..., layout.OB_STIFF], newton, iters, shots)
     sh.set_counts(iters, shots)
     contact.stiffen(tolerance, steps, newton, rods & sh.converged())
@@ -183,7 +190,4 @@ def lean_along(contact: Contact, tolerance: float, steps: int, newton: dict) -> 
     if failed.any():  # the answer as it was
         contact.table[failed] = table[failed]
         sh.dev.put(sh.model.obst, contact.table)
-        iters, shots = sh.counts()
-        sh.solve(answer, mask=failed, fresh_jacobian=True, **newton)
-        it, sn = sh.counts()
-        sh.set_counts(np.where(failed, iters + it, iters), np.where(failed, shots + sn, shots))
+        _solve_again(sh, answer, failed, newton)
