@@ -82,24 +82,32 @@ def test_calibration_recovers_known_parameters_within_their_uncertainty(tmp_path
                for n, v in par.items())
 
 
-def test_fit_jacobian_matches_central_differences_of_full_solves():
+@pytest.mark.parametrize("physics", [(), ("weight", "hole_radius")])
+def test_fit_jacobian_matches_central_differences_of_full_solves(physics):
     """The fit's implicit-function Jacobian (tendon compliances and angles at the motors' given
-    lengths, plus the path through the reference state) against central differences of whole
-    predictions of the scene with each fitted parameter moved (every parameter kind, both
-    segments; no tendon slack, where the tip's derivatives have a kink)."""
+    lengths, plus the path through the reference state; with the extra physics, the weight's
+    components and the hole radii) against central differences of whole predictions of the scene
+    with each fitted parameter moved (every parameter kind, both segments; no tendon slack, where
+    the tip's derivatives have a kink)."""
     from tdcr_warp.apps import hardware as hw
     rng = np.random.default_rng(3)
     q = np.concatenate([rng.uniform(0.02, 0.2, (6, 6)) * (rng.random((6, 6)) < 0.4), np.zeros((1, 6))])
     meas = read_measurements_from(q, np.zeros((7, 3)))
     data = scene_dict()
-    spec = hw._parameter_spec(data, "tendon")
+    if physics:  # a steel backbone mounted sideways, its weight tilted
+        data["robot"]["density"] = 7800.0
+        data["loads"] = {"gravity": [-9.0, 2.0, -3.0]}
+    spec = hw._parameter_spec(data, "tendon", physics)
+    assert len(spec) == 13 + 5 * bool(physics)  # + gravity[0..2], a hole radius per segment
     p = np.array([sp["value"] for sp in spec])
     lo, hi = (np.array([sp[k] for sp in spec]) for k in ("lo", "hi"))
-    cur = predict(scene_from_dict(hw._apply(data, spec, p)), meas, parameters=hw._jacobian_names(data), tol=1e-12)
+    cur = predict(scene_from_dict(hw._apply(data, spec, p)), meas, parameters=hw._jacobian_names(data, spec),
+                  tol=1e-12)
     assert cur["converged"].all() and not cur["slack"].any()
     J = hw._fit_jacobian(data, spec, p, cur, np.arange(7), lo, hi)
     for j, sp in enumerate(spec):
-        h = {"compliance": 1e-3, "pretension": 1e-2, "angle": 1e-5, "offset": 1e-6}[sp["kind"]]
+        h = {"compliance": 1e-3, "pretension": 1e-2, "angle": 1e-5, "offset": 1e-6, "gravity": 1e-2,
+             "radius": 1e-6}[sp["kind"]]
         up, down = p.copy(), p.copy()
         up[j], down[j] = p[j] + h, max(p[j] - h, lo[j])
         a, b = (predict(scene_from_dict(hw._apply(data, spec, x)), meas, tol=1e-12)["error_mm"] for x in (up, down))
@@ -108,6 +116,25 @@ def test_fit_jacobian_matches_central_differences_of_full_solves():
         # pretensions <= 2.5e-3 (a sum over a segment's three tendons that nearly cancels in x and y,
         # each term as good as tip_jacobian's displacement columns, 1e-5 - 2.6e-5 here)
         assert np.abs(fd).max() > 0 and np.abs(J[:, j] - fd).max() < 5e-3 * np.abs(fd).max(), sp["name"]
+
+
+def test_weight_fitted_needs_a_density_and_unknown_physics_is_refused():
+    from tdcr_warp.apps import hardware as hw
+    with pytest.raises(tw.InputError, match="density > 0"):
+        hw._parameter_spec(scene_dict(), "tendon", ("weight",))
+    with pytest.raises(tw.InputError, match="'friction'"):
+        hw._parameter_spec(scene_dict(), "tendon", ("friction",))
+
+
+def test_motion_families_and_the_family_out_splits():
+    from tdcr_warp.apps.hardware import family_out_splits, motion_families
+    labels = np.array(["rep1_seg1_dir60", "seg3_circle_hold", "rep2_pair12_same_dir0", "pair13_opp_dir60_hold",
+                       "rep1_tendon4_id2_pull", "tendon0_id4_pull_hold", "warmup", "segment"])
+    assert list(motion_families(labels)) == ["segment", "segment", "pair", "pair", "pull", "pull", "other", "other"]
+    splits = family_out_splits(labels)
+    assert list(splits["pairs out"]) == [False, False, True, True, False, False, False, False]
+    assert list(splits["pulls out"]) == [False, False, False, False, True, True, False, False]
+    assert family_out_splits(labels[:2]) == {}  # no family to hold out, or nothing left to fit on
 
 
 def test_recorded_order_without_friction_is_the_batch_and_with_friction_a_loop():

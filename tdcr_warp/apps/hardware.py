@@ -21,6 +21,7 @@ import copy
 import csv
 import io
 import math
+import re
 import time
 from array import array
 from dataclasses import dataclass
@@ -157,6 +158,28 @@ def pattern_folds(labels: np.ndarray, k: int) -> np.ndarray:
     start = np.cumsum(rows) - rows  # rows before each pattern
     fold_of_rank = np.minimum(start * k // len(labels), k - 1)
     return fold_of_rank[rank[inverse]]
+
+
+FAMILIES = {"seg": "segment", "pair": "pair", "tendon": "pull"}  # a label's first word (after rep<n>_) -> family
+# Validation by kind of motion (family_out_splits): the fit sees only the other families, simpler
+# motions than those it predicts, as a user's new commands are.
+HELD_FAMILIES = {"pairs out": "pair", "pulls out": "pull"}
+
+
+def motion_families(labels: np.ndarray) -> np.ndarray:
+    """(M,) each row's kind of motion from its recorded label: "segment" (one segment bent, in a
+    direction or around a circle: seg<s>_...), "pair" (two segments bent together: pair<ij>_...),
+    "pull" (a single tendon pulled: tendon<k>_..._pull); any other label is "other"."""
+    words = [re.sub(r"^rep\d+_", "", str(v)) for v in labels]
+    return np.array([next((f for w, f in FAMILIES.items() if re.match(w + r"\d", v)), "other") for v in words])
+
+
+def family_out_splits(labels: np.ndarray) -> dict[str, np.ndarray]:
+    """Validation that mimics use: for each HELD_FAMILIES entry with rows on both sides, a (M,)
+    bool mask of the rows held out (that family); the fit sees every other row."""
+    fam = motion_families(labels)
+    out = {name: fam == f for name, f in HELD_FAMILIES.items()}
+    return {name: m for name, m in out.items() if m.any() and not m.all()}
 
 
 def _hardware(scene: Scene) -> dict:
@@ -310,6 +333,11 @@ def metrics(error_mm: np.ndarray, converged: np.ndarray, length_m: float) -> dic
 # statics of a displacement-controlled rod do not change when every stiffness and force scales
 # by the same factor (E, 1 / compliance, pretension), so tip data alone cannot fix all three.
 FIT_PARAMETERS = ("compliance", "pretension", "angle", "base_offset")
+# More physics, each fitted on request (``fit(physics=...)``): "weight", the robot's weight per
+# length as gravity[0..2] on the scene's (known) density: its direction is the robot's mounting,
+# its size fixes the scale the tip data cannot (weight_report: the Young's modulus it implies for
+# g = 9.81); "hole_radius[s]", the distance of segment s's tendons from the backbone [m].
+PHYSICS = ("weight", "hole_radius")
 
 
 def _segments(data: dict) -> list[list[int]]:
@@ -322,12 +350,16 @@ def _segments(data: dict) -> list[list[int]]:
 DETAILS = ("segment", "tendon")
 
 
-def _parameter_spec(data: dict, detail: str) -> list[dict]:
+def _parameter_spec(data: dict, detail: str, physics=()) -> list[dict]:
     """The fitted parameters: name, kind, the tendons (or axis) each acts on, start value,
-    bounds and the difference step of its reference lengths (_reference_rates). detail "segment": one compliance, a pretension and a rotation
-    per segment; "tendon": a compliance and a pretension per segment and a rotation per tendon."""
+    bounds and the difference step of its reference lengths (_reference_rates). detail "segment":
+    one compliance, a pretension and a rotation per segment; "tendon": a compliance and a
+    pretension per segment and a rotation per tendon; then the ``physics`` asked for (PHYSICS)."""
     if detail not in DETAILS:
         raise InputError(f"fit detail must be one of {DETAILS}, got {detail!r}")
+    unknown = [v for v in physics if v not in PHYSICS]
+    if unknown:
+        raise InputError(f"fit physics: {unknown} not among {PHYSICS}")
     segs = _segments(data)
     t = data["tendons"]
     everyone = [k for g in segs for k in g]
@@ -346,6 +378,24 @@ def _parameter_spec(data: dict, detail: str) -> list[dict]:
         spec.append({"name": f"base_offset[{i}]", "kind": "offset", "on": i,
                      "value": float(data["hardware"].get("base_offset", [0.0, 0.0, 0.0])[i]), "lo": -0.05,
                      "hi": 0.05, "step": 0.0})
+    return spec + _physics_spec(data, segs, physics)
+
+
+def _physics_spec(data: dict, segs: list[list[int]], physics) -> list[dict]:
+    """The PHYSICS parameters asked for: "weight" needs the scene's density (> 0)."""
+    spec = []
+    if "weight" in physics:
+        if not data["robot"].get("density", 0.0) > 0:
+            raise InputError("fit physics \"weight\" needs [robot] density > 0 (the backbone's and its disks' mass "
+                             "per volume of the backbone): the weight's size is fitted as gravity against it")
+        g = data.get("loads", {}).get("gravity", [0.0, 0.0, 0.0])
+        spec += [{"name": f"gravity[{i}]", "kind": "gravity", "on": i, "value": float(g[i]), "lo": -100.0,
+                  "hi": 100.0, "step": 1e-2} for i in range(3)]
+    if "hole_radius" in physics:
+        t = data["tendons"]
+        spec += [{"name": f"hole_radius[{s}]", "kind": "radius", "on": g,
+                  "value": float(np.mean([np.hypot(*t[k]["offset"]) for k in g])), "lo": 1e-4, "hi": 0.1,
+                  "step": 1e-6} for s, g in enumerate(segs)]
     return spec
 
 
@@ -365,6 +415,14 @@ def _apply(data0: dict, spec: list[dict], p: np.ndarray) -> dict:
             for k in sp["on"]:
                 x, y = t[k]["offset"]
                 t[k]["offset"] = [c * x - sn * y, sn * x + c * y]
+        elif sp["kind"] == "gravity":
+            loads = data.setdefault("loads", {})
+            loads["gravity"] = list(loads.get("gravity", [0.0, 0.0, 0.0]))
+            loads["gravity"][sp["on"]] = float(v)
+        elif sp["kind"] == "radius":
+            for k in sp["on"]:
+                x, y = t[k]["offset"]
+                t[k]["offset"] = [v * x / math.hypot(x, y), v * y / math.hypot(x, y)]
         else:
             data["hardware"].setdefault("base_offset", [0.0, 0.0, 0.0])
             data["hardware"]["base_offset"] = list(data["hardware"]["base_offset"])
@@ -391,10 +449,15 @@ def _grid_angle(data: dict, spec: list[dict], p: np.ndarray, angles: np.ndarray,
     return best
 
 
-def _jacobian_names(data: dict) -> list[str]:
+def _jacobian_names(data: dict, spec: list[dict]) -> list[str]:
     """The robot parameters whose tip Jacobians (solve_static ``parameters``) the fit's columns are
-    made of: every tendon's compliance and angle (a pretension moves only the reference state)."""
-    return [f"tendons[{k}].{f}" for f in ("compliance", "angle") for k in range(len(data["tendons"]))]
+    made of: every tendon's compliance and angle (a pretension moves only the reference state),
+    and with the PHYSICS the gravity's components and the tendons' offsets."""
+    K = range(len(data["tendons"]))
+    kinds = {sp["kind"] for sp in spec}
+    return ([f"tendons[{k}].{f}" for f in ("compliance", "angle") for k in K]
+            + ([f"gravity[{i}]" for i in range(3)] if "gravity" in kinds else [])
+            + ([f"tendons[{k}].offset[{c}]" for k in K for c in range(2)] if "radius" in kinds else []))
 
 
 def _reference_rates(data: dict, spec: list[dict], p: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
@@ -422,7 +485,8 @@ def _fit_jacobian(data: dict, spec: list[dict], p: np.ndarray, cur: dict, rows: 
     reference state, which sets those lengths (avail = reference - q: minus ``tip_jacobian`` times
     ``_reference_rates``); the base offset's columns are the identity. No solve is repeated."""
     sol = cur["solution"]
-    names = _jacobian_names(data)
+    names = _jacobian_names(data, spec)
+    tendons = _apply(data, spec, p)["tendons"]
     PJ, TJ = sol.parameter_jacobian[rows, :3], sol.tip_jacobian[rows, :3]
     J = np.zeros((len(rows), 3, len(p)))
     J -= np.einsum("bik,kj->bij", TJ, _reference_rates(data, spec, p, lo, hi))
@@ -431,12 +495,18 @@ def _fit_jacobian(data: dict, spec: list[dict], p: np.ndarray, cur: dict, rows: 
             J[:, :, j] += math.exp(p[j]) * sum(PJ[:, :, names.index(f"tendons[{k}].compliance")] for k in sp["on"])
         elif sp["kind"] == "angle":
             J[:, :, j] += sum(PJ[:, :, names.index(f"tendons[{k}].angle")] for k in sp["on"])
+        elif sp["kind"] == "gravity":
+            J[:, :, j] += PJ[:, :, names.index(f"gravity[{sp['on']}]")]
+        elif sp["kind"] == "radius":  # along each tendon's unit offset
+            for k in sp["on"]:
+                u = np.array(tendons[k]["offset"]) / np.hypot(*tendons[k]["offset"])
+                J[:, :, j] += sum(u[c] * PJ[:, :, names.index(f"tendons[{k}].offset[{c}]")] for c in range(2))
         elif sp["kind"] == "offset":
             J[:, sp["on"], j] = 1.0
     return J.reshape(3 * len(rows), len(p))
 
 
-def fit(data: dict, meas: Measurements, *, detail: str = "tendon", max_iter: int = 30, device=None,
+def fit(data: dict, meas: Measurements, *, detail: str = "tendon", physics=(), max_iter: int = 30, device=None,
         progress=None) -> dict:
     """Calibrate the scene dict ``data`` (with [hardware]) on ``meas`` by Levenberg-Marquardt
     (``_levenberg_marquardt``): the residual is every row's predicted less measured point [m]; its
@@ -449,7 +519,7 @@ def fit(data: dict, meas: Measurements, *, detail: str = "tendon", max_iter: int
     residual variance per coordinate; ``_standard_deviations``), the names of those the data cannot
     determine (``unidentifiable``: their std NaN), the training metrics, iterations and time."""
     t0 = time.perf_counter()
-    spec = _parameter_spec(data, detail)
+    spec = _parameter_spec(data, detail, physics)
     if 3 * len(meas) <= len(spec):
         raise InputError(f"fit: {len(meas)} rows ({3 * len(meas)} coordinates) cannot determine the {len(spec)} "
                          f"parameters of detail {detail!r} and their uncertainty; need at least "
@@ -467,14 +537,15 @@ def fit(data: dict, meas: Measurements, *, detail: str = "tendon", max_iter: int
     p = np.where(angles, 0.0, p)  # the rotations are now relative to the grid's
     history = [{"grid_angle_rad": float(best[1]), "grid_rmse_aligned_mm": float(best[0])}]
     its, cur = 0, None
+    general = {"specialize": False} if "weight" in physics else {}
     for part in (meas.subset(np.arange(0, len(meas), COARSE_EVERY)), meas):
         # all rows start from the coarse phase's solution of the row at or before them (a neighbour
         # in the recording)
         warm = None if cur is None else cur["solution"].rows(np.arange(len(meas)) // COARSE_EVERY)
 
-        def evaluate(q, warm=None, part=part):
+        def evaluate(q, warm=None, part=part):  # a weight fitted from zero: kernels with gravity compiled in
             out = predict(scene_from_dict(_apply(base_data, spec, q)), part, device=device, initial=warm,
-                          parameters=_jacobian_names(base_data))
+                          parameters=_jacobian_names(base_data, spec), **general)
             ok = out["converged"] & np.isfinite(out["solution"].parameter_jacobian).all(axis=(1, 2))
             out["rows"] = np.flatnonzero(ok)
             return out
@@ -493,7 +564,22 @@ def fit(data: dict, meas: Measurements, *, detail: str = "tendon", max_iter: int
               "unidentifiable": [n for n, x in zip(names, lost) if x],
               "iterations": its, "history": history, "wall_s": time.perf_counter() - t0,
               "training": metrics(cur["error_mm"], cur["converged"], L), "rows": len(meas)}
+    if "weight" in physics:
+        report["weight"] = weight_report(fitted)
     return {"scene": fitted, "report": report, "prediction": cur}
+
+
+def weight_report(data: dict) -> dict:
+    """What a fitted weight says (scene dict with density and [loads] gravity): the weight per
+    length [N/m] and in all [N], its direction in the base frame (the mounting), and the Young's
+    modulus it implies if gravity is 9.81 m/s^2 and the density is right (a displacement-controlled
+    robot's statics do not change when E, 1 / compliance, pretension and weight scale together)."""
+    r = data["robot"]
+    g = np.array(data.get("loads", {}).get("gravity", [0.0, 0.0, 0.0]), dtype=float)
+    w = r["density"] * math.pi * r["radius"] ** 2 * float(np.linalg.norm(g))
+    return {"per_length_N_per_m": w, "total_N": w * r["length"],
+            "direction": (g / np.linalg.norm(g)).tolist() if w > 0 else None,
+            "implied_youngs_modulus_Pa": r["youngs_modulus"] * 9.81 / float(np.linalg.norm(g)) if w > 0 else None}
 
 
 def unidentifiable(J: np.ndarray) -> np.ndarray:

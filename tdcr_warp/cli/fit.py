@@ -30,6 +30,9 @@ def register(subparsers) -> None:
     p.add_argument("--detail", choices=["segment", "tendon"], default="tendon",
                    help="a rotation per tendon and a compliance per segment (default), or one per segment "
                         "and one compliance")
+    p.add_argument("--physics", nargs="+", choices=["weight", "hole_radius"], default=[],
+                   help="also fit the robot's weight and mounting (needs [robot] density: its weight per length "
+                        "as gravity) and/or each segment's tendon hole radius")
     add_solver_arguments(p)
     add_log_arguments(p)
 
@@ -54,7 +57,8 @@ def _run(args, scene, meas, out: OutputRun) -> int:
     from tdcr_warp.apps.hardware import fit
 
     print(f"fitting {printable(Path(args.scene).name)} on {len(meas)} rows ...", flush=True)
-    res = fit(scene.source, meas, detail=args.detail, device=args.device, max_iter=args.max_iter,
+    res = fit(scene.source, meas, detail=args.detail, physics=tuple(args.physics), device=args.device,
+              max_iter=args.max_iter,
               progress=None if args.quiet else _print_iteration)
     rep = res["report"]
     header = (f"# Fitted by tdcr-warp fit from {printable(Path(args.scene).name)} on "  # one comment line each
