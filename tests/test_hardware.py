@@ -265,6 +265,37 @@ def test_fit_cli_writes_a_scene_that_predict_reads(tmp_path):
     assert main(["predict", str(out / "fitted.toml"), str(csv), "--out", str(tmp_path / "p")]) == 0
     m = json.loads((tmp_path / "p" / "metrics.json").read_text())
     assert m["rmse_mm"] == pytest.approx(rep["training"]["rmse_mm"], rel=1e-6)
+    assert "coverage_95" not in m and not (out / "residual.npz").exists()  # the physics alone by default
+
+
+def test_fit_and_predict_with_a_learned_residual_report_each_rows_interval(tmp_path):
+    """fit --residual writes residual.npz; predict --residual adds its correction and each row's
+    sigma and 95% interval, and the interval's coverage in metrics.json; predict refuses a file
+    that is not a residual, naming it."""
+    import csv as csvlib
+
+    import tomli_w
+    data = tmp_path / "synthetic.csv"
+    synthetic_csv(data, rows=40)
+    scene = tmp_path / "start.toml"
+    scene.write_text(tomli_w.dumps(scene_dict(compliance=4e-4, angle=(0.0, 0.0), base=(0.0, 0.0, 0.0))))
+    out = tmp_path / "fit"
+    assert main(["fit", str(scene), str(data), "--out", str(out), "--max-iter", "4", "--quiet", "--residual"]) == 0
+    assert main(["predict", str(out / "fitted.toml"), str(data), "--out", str(tmp_path / "p"), "--residual",
+                 str(out / "residual.npz"), "--quiet"]) == 0
+    m = json.loads((tmp_path / "p" / "metrics.json").read_text())
+    assert 0.0 <= m["coverage_95"] <= 1.0 and m["units"]["coverage_95"] == "1"
+    with open(tmp_path / "p" / "predictions.csv") as f:
+        rows = list(csvlib.DictReader(f))
+    r = rows[0]
+    for a in "xyz":
+        sigma, lo, hi, pred = (float(r[f"{w}_{a}_mm"]) for w in ("sigma", "low95", "high95", "pred"))
+        assert sigma > 0 and lo == pytest.approx(pred - 1.959964 * sigma, abs=2e-6) and hi > pred
+    inside = np.mean([float(r[f"low95_{a}_mm"]) <= float(r[f"meas_{a}_mm"]) <= float(r[f"high95_{a}_mm"])
+                      for r in rows for a in "xyz"])
+    assert inside == pytest.approx(m["coverage_95"])
+    assert main(["predict", str(out / "fitted.toml"), str(data), "--out", str(tmp_path / "q"), "--residual",
+                 str(data)]) == 2
 
 
 def test_unidentifiable_names_the_parameters_spanning_the_null_space():

@@ -63,7 +63,8 @@ class Residual:
         return mean - Z95 * std, mean + Z95 * std
 
     def save(self, path) -> None:
-        np.savez(path, format=np.array(FORMAT), commands=self.commands, targets=self.targets, theta=self.theta)
+        with open(path, "wb") as f:  # a file object: numpy appends no .npz to the name
+            np.savez(f, format=np.array(FORMAT), commands=self.commands, targets=self.targets, theta=self.theta)
 
     @classmethod
     def load(cls, path) -> "Residual":

@@ -19,7 +19,7 @@ from tdcr_warp.cli.predict import add_data_argument, write_predictions
 from tdcr_warp.io.files import printable
 from tdcr_warp.model.robot import InputError
 
-FILES = ("fit.json", "fitted.toml", "predictions.csv")  # the completion files (fit.json written last) first
+FILES = ("fit.json", "fitted.toml", "predictions.csv", "residual.npz")  # the completion files (fit.json last) first
 
 
 def register(subparsers) -> None:
@@ -33,6 +33,9 @@ def register(subparsers) -> None:
     p.add_argument("--physics", nargs="+", choices=["weight", "hole_radius"], default=[],
                    help="also fit the robot's weight and mounting (needs [robot] density: its weight per length "
                         "as gravity) and/or each segment's tendon hole radius")
+    p.add_argument("--residual", action="store_true",
+                   help="also fit a learned correction with an uncertainty on what the fitted physics misses "
+                        "(a Gaussian process over the commands; residual.npz, for predict --residual)")
     add_solver_arguments(p)
     add_log_arguments(p)
 
@@ -67,6 +70,13 @@ def _run(args, scene, meas, out: OutputRun) -> int:
               f"{rep['training']['rmse_aligned_mm']:.3f} mm; parameters and uncertainty in fit.json.\n")
     write_atomic(out / "fitted.toml", lambda tmp: Path(tmp).write_text(header + tomli_w.dumps(res["scene"])))
     write_predictions(out / "predictions.csv", meas, res["prediction"])
+    if args.residual:
+        from tdcr_warp.apps.residual import fit_residual
+
+        pr = res["prediction"]
+        ok = pr["converged"]
+        correction = fit_residual(meas.servo_mm[ok], -pr["error_mm"][ok])
+        write_atomic(out / "residual.npz", correction.save)
     write_json(out / "fit.json", rep | {"scene": str(args.scene), "data": [str(d) for d in args.data],
                                         "settings": settings(scene, args.device or "default")})
     out.commit()  # fitted.toml, then fit.json last
@@ -77,7 +87,7 @@ def _run(args, scene, meas, out: OutputRun) -> int:
         lost = name in rep["unidentifiable"]
         print(f"  {name:16s} {v['value']: .6g} " + ("NOT IDENTIFIABLE from these data (left at this value)" if lost
                                                     else f"+- {v['std']:.2g}"))
-    print(f"wrote {out}/fitted.toml, fit.json, predictions.csv")
+    print(f"wrote {out}/fitted.toml, fit.json, predictions.csv" + (", residual.npz" if args.residual else ""))
     if rep["unidentifiable"]:
         print(f"tdcr-warp fit: the data cannot determine {', '.join(rep['unidentifiable'])} (more rows or other "
               "motions, or a coarser --detail); the fit is flagged (exit 1)", flush=True)
