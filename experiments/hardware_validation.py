@@ -79,7 +79,7 @@ def _rung_scene(fitted: dict, over, name: str) -> dict:
     return d
 
 
-def cross_validate(name: str, data: dict, meas, smoke: bool) -> tuple[dict, dict]:
+def cross_validate(name: str, data: dict, meas, smoke: bool, physics=()) -> tuple[dict, dict]:
     """Leak-free cross-validation (FOLDS blocks of whole patterns, pattern_folds): fit on the other
     blocks, predict the held-out one, for the fitted model and for every rung of RUNGS (the same
     fold's fitted parameters, the rung's physics or discretisation; the disk model warm-started
@@ -92,7 +92,7 @@ def cross_validate(name: str, data: dict, meas, smoke: bool) -> tuple[dict, dict
     times = {r: [0.0, 0] for r in RUNGS}
     for k in range(fold.max() + 1):
         test = np.flatnonzero(fold == k)
-        fk = fit(data, meas.subset(np.flatnonzero(fold != k)), max_iter=2 if smoke else 30)
+        fk = fit(data, meas.subset(np.flatnonzero(fold != k)), physics=physics, max_iter=2 if smoke else 30)
         held = meas.subset(test)
         base = None  # the fitted rung's prediction (RUNGS starts with it): the disk model's warm start
         for rung, over in RUNGS.items():
@@ -158,7 +158,7 @@ def plot_patterns(labels: np.ndarray, errors: np.ndarray, path: Path, name: str)
     plt.close(fig)
 
 
-def one_robot(name: str, scenes: bool, smoke: bool, data_dir: Path = HARDWARE_DATA) -> dict:
+def one_robot(name: str, scenes: bool, smoke: bool, data_dir: Path = HARDWARE_DATA, physics=()) -> dict:
     nominal = ROOT / "examples" / "hardware" / f"ftdcr_{name}_nominal.toml"
     data = tomllib.loads(nominal.read_text())
     cols = data["hardware"]["servo_columns"]
@@ -170,10 +170,10 @@ def one_robot(name: str, scenes: bool, smoke: bool, data_dir: Path = HARDWARE_DA
     start = predict(scene_from_dict(data), meas)
     out["nominal"] = _summary(metrics(start["error_mm"], start["converged"], L))
     t = time.perf_counter()
-    res = fit(data, meas, max_iter=2 if smoke else 30)
+    res = fit(data, meas, physics=physics, max_iter=2 if smoke else 30)
     out["fit"] = {"wall_s": time.perf_counter() - t, "iterations": res["report"]["iterations"],
                   "parameters": res["report"]["parameters"], "training": _summary(res["report"]["training"])}
-    again = fit(data, meas, max_iter=2 if smoke else 30)  # reproducible: the same data, the same parameters
+    again = fit(data, meas, physics=physics, max_iter=2 if smoke else 30)  # reproducible: the same data, the same parameters
     out["fit"]["reproducible_max_rel"] = max(abs(a["value"] - b["value"]) / max(abs(a["value"]), 1e-12)
                                              for a, b in zip(res["report"]["parameters"].values(),
                                                              again["report"]["parameters"].values()))
@@ -184,12 +184,13 @@ def one_robot(name: str, scenes: bool, smoke: bool, data_dir: Path = HARDWARE_DA
     if scenes and not smoke:
         target = ROOT / "examples" / "hardware" / f"ftdcr_{name}.toml"
         tr = out["fit"]["training"]
-        header = (f"# Franka TDCR {name}, fitted by `tdcr-warp fit` (experiments/hardware_validation.py) from\n"
+        how = f" --physics {' '.join(physics)}" if physics else ""
+        header = (f"# Franka TDCR {name}, fitted by `tdcr-warp fit{how}` (experiments/hardware_validation.py) from\n"
                   f"# ftdcr_{name}_nominal.toml on opencr-mujoco's {name}_train.csv ({len(meas)} rows; MIT licence,\n"
                   f"# github ContinuumRoboticsLab/opencr-mujoco): training RMSE {tr['rmse_mm']:.2f} mm, aligned "
                   f"{tr['rmse_aligned_mm']:.2f} mm.\n# Predict new keypoints: tdcr-warp predict {target.relative_to(ROOT)} NEW.csv\n")
         target.write_text(header + tomli_w.dumps(res["scene"]))
-    out["cross_validation"], out["rungs"] = cross_validate(name, data, meas, smoke)
+    out["cross_validation"], out["rungs"] = cross_validate(name, data, meas, smoke, physics)
     return out
 
 
@@ -198,6 +199,9 @@ def main(argv=None) -> int:
     add_hardware_data_argument(ap)
     ap.add_argument("--robots", nargs="+", default=["v4", "v6"])
     ap.add_argument("--no-scenes", action="store_true", help="do not write examples/hardware/ftdcr_*.toml")
+    ap.add_argument("--physics", nargs="*", default=["weight"], choices=["weight", "hole_radius"],
+                    help="the physics fitted beside the tendons (default: weight; experiments/hardware_families.py "
+                         "measured which carries over to motions the fit never saw)")
     ap.add_argument("--smoke", action="store_true", help="40 rows, 2 iterations (for the test suite)")
     ap.add_argument("--out", default=str(ROOT / "results" / "hardware_validation.json"))
     args = ap.parse_args(argv)
@@ -205,7 +209,7 @@ def main(argv=None) -> int:
         return 0
     report = {"meta": metadata("cpu", command=" ".join(sys.argv))}
     for name in args.robots:
-        report[name] = one_robot(name, not args.no_scenes, args.smoke, args.data)
+        report[name] = one_robot(name, not args.no_scenes, args.smoke, args.data, tuple(args.physics))
     write_report(args.out, report)
     return 0
 

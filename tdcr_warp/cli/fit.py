@@ -87,6 +87,11 @@ def _run(args, scene, meas, out: OutputRun) -> int:
         lost = name in rep["unidentifiable"]
         print(f"  {name:16s} {v['value']: .6g} " + ("NOT IDENTIFIABLE from these data (left at this value)" if lost
                                                     else f"+- {v['std']:.2g}"))
+    if "weight" in rep:
+        w = rep["weight"]
+        print(f"  weight {w['per_length_N_per_m']:.4g} N/m ({w['total_N']:.4g} N in all) along "
+              + (f"[{', '.join(f'{v:.3f}' for v in w['direction'])}] in the base frame; with g = 9.81 m/s^2 and this "
+                 f"density it implies E = {w['implied_youngs_modulus_Pa']:.4g} Pa" if w["direction"] else "no direction"))
     print(f"wrote {out}/fitted.toml, fit.json, predictions.csv" + (", residual.npz" if args.residual else ""))
     if rep["unidentifiable"]:
         print(f"tdcr-warp fit: the data cannot determine {', '.join(rep['unidentifiable'])} (more rows or other "
