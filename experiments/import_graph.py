@@ -1,7 +1,9 @@
 """The package's import graph and the size of its pieces, read from the source with `ast`.
 
     python experiments/import_graph.py            # layers, floors, cycles, largest pieces
-    python experiments/import_graph.py --check    # exit 1 on an upward import, a cycle or an oversized piece
+    python experiments/import_graph.py --check    # exit 1 on an upward import, a cycle, an oversized piece
+                                                  # or a stale module table in docs/architecture.md
+    python experiments/import_graph.py --table    # write that table from the code
     python experiments/import_graph.py --out results/import_graph.json   # the same as JSON, with run metadata
     python experiments/import_graph.py --figure docs/figures/layers.png  # the picture on docs/architecture.md
 
@@ -149,6 +151,43 @@ def oversized(root: Path = ROOT) -> list[str]:
     return [f"{where}: {kind} of {n} lines (limit {limit[kind]})" for n, where, kind in pieces(root) if n > limit[kind]]
 
 
+ARCHITECTURE = ROOT / "docs" / "architecture.md"
+TABLE_BEGIN = "<!-- module table: written by `python experiments/import_graph.py --table`; tests/test_layers.py checks it -->"
+TABLE_END = "<!-- end of the module table -->"
+
+
+def summary(path: Path) -> str:
+    """The first sentence of a module's docstring, on one line (| escaped for a Markdown table)."""
+    doc = ast.get_docstring(ast.parse(path.read_text(), str(path))) or ""
+    first = " ".join(doc.split("\n\n")[0].split())
+    cut = first.find(". ")
+    return (first if cut < 0 else first[: cut + 1]).replace("|", "\\|")
+
+
+def module_table(root: Path = ROOT) -> str:
+    """Every module of the package, layer by layer (top first) and by name: its file and the first
+    sentence of its docstring; the table between TABLE_BEGIN and TABLE_END in docs/architecture.md."""
+    known = modules(root)
+    rows = [TABLE_BEGIN, "", "| layer | module | what it is |", "|---|---|---|"]
+    for layer in (None, *LAYERS):  # None: the package's entry points, above the layers
+        for name in sorted(n for n in known if layer_of(n) == layer):
+            rows.append(f"| {layer or 'package'} | `{known[name].relative_to(root)}` | {summary(known[name]) or '-'} |")
+    return "\n".join(rows + ["", TABLE_END])
+
+
+def table_in(text: str) -> str | None:
+    """The module table block of docs/architecture.md's text (None when its markers are missing)."""
+    a, b = text.find(TABLE_BEGIN), text.find(TABLE_END)
+    return text[a: b + len(TABLE_END)] if 0 <= a < b else None
+
+
+def stale_table(root: Path = ROOT) -> list[str]:
+    """A problem line when docs/architecture.md's module table is not the one the code gives."""
+    found = table_in((root / "docs" / "architecture.md").read_text())
+    return [] if found == module_table(root) else [
+        "docs/architecture.md: the module table differs from the code (python experiments/import_graph.py --table)"]
+
+
 def layer_imports(g: dict[str, set[str]]) -> dict[tuple[str, str], int]:
     """(importing layer, imported layer) -> number of module imports between two layers."""
     counts: dict[tuple[str, str], int] = {}
@@ -199,13 +238,18 @@ def draw(g: dict[str, set[str]], path: str) -> None:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--check", action="store_true",
-                        help="exit 1 on an upward import, a cycle or an oversized piece")
+                        help="exit 1 on an upward import, a cycle, an oversized piece or a stale module table")
     parser.add_argument("--out", help="also write the graph, floors, largest pieces and problems as JSON")
     parser.add_argument("--figure", help="draw the layers picture (PNG) into this file")
+    parser.add_argument("--table", action="store_true", help="write the module table into docs/architecture.md")
     parser.add_argument("--smoke", action="store_true", help="accepted for the experiments' smoke test (always quick)")
     args = parser.parse_args(argv)
+    if args.table:
+        text = ARCHITECTURE.read_text()
+        old = table_in(text)
+        ARCHITECTURE.write_text(text.replace(old, module_table()) if old else text + "\n" + module_table() + "\n")
     g = graph()
-    problems = upward_imports(g) + [" -> ".join(c) + " (cycle)" for c in cycles(g)] + oversized()
+    problems = upward_imports(g) + [" -> ".join(c) + " (cycle)" for c in cycles(g)] + oversized() + stale_table()
     fl = floors(g) if not cycles(g) else {}
     if fl:
         print(f"{len(g)} modules on {max(fl.values()) + 1} floors")

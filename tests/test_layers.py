@@ -67,3 +67,14 @@ def test_checker_measures_pieces(tmp_path):
     assert import_graph.oversized(root) == [
         f"tdcr_warp/__init__.py:long: function of {import_graph.MAX_FUNCTION + 1} lines "
         f"(limit {import_graph.MAX_FUNCTION})"]
+
+
+def test_the_module_table_of_the_architecture_page_is_the_codes():
+    """docs/architecture.md's module table is generated from the code (each module's file and first
+    docstring sentence); a module added, removed or redescribed without `import_graph.py --table`
+    fails here, and a planted difference is caught."""
+    assert import_graph.stale_table() == []
+    table = import_graph.module_table()
+    assert table.count("\n| ") == len(import_graph.modules()) + 1  # a row a module, and the header
+    planted = table.replace("| model | `tdcr_warp/model/robot.py` |", "| model | `tdcr_warp/model/robots.py` |")
+    assert planted != table and import_graph.table_in("x\n" + planted + "\ny") != table

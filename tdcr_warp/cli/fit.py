@@ -1,5 +1,5 @@
 """``tdcr-warp fit SCENE.toml DATA.csv ...``: calibrate a [hardware] scene on keypoint CSVs
-(tdcr_warp.apps.hardware.fit); fitted.toml, fit.json and predictions.csv."""
+(tdcr_warp.apps.hardware.fit); fitted.toml, fit.json, predictions.csv and (--residual) residual.npz."""
 
 from __future__ import annotations
 
