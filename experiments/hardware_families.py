@@ -39,7 +39,8 @@ from tdcr_warp.io.scene import scene_from_dict  # noqa: E402
 
 FOLDS = 5
 MODELS = {"tendons": (), "+ weight": ("weight",), "+ hole radius": ("hole_radius",),
-          "+ weight, hole radius": ("weight", "hole_radius")}
+          "+ weight, hole radius": ("weight", "hole_radius"), "+ marker on the tip": ("marker",),
+          "+ weight, marker on the tip": ("weight", "marker")}
 
 
 def _splits(meas, smoke: bool) -> dict[str, np.ndarray]:

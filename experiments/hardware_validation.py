@@ -199,7 +199,7 @@ def main(argv=None) -> int:
     add_hardware_data_argument(ap)
     ap.add_argument("--robots", nargs="+", default=["v4", "v6"])
     ap.add_argument("--no-scenes", action="store_true", help="do not write examples/hardware/ftdcr_*.toml")
-    ap.add_argument("--physics", nargs="*", default=["weight"], choices=["weight", "hole_radius"],
+    ap.add_argument("--physics", nargs="*", default=["weight"], choices=["weight", "hole_radius", "marker"],
                     help="the physics fitted beside the tendons (default: weight; experiments/hardware_families.py "
                          "measured which carries over to motions the fit never saw)")
     ap.add_argument("--smoke", action="store_true", help="40 rows, 2 iterations (for the test suite)")

@@ -83,11 +83,11 @@ def test_calibration_recovers_known_parameters_within_their_uncertainty(tmp_path
                for n, v in par.items())
 
 
-@pytest.mark.parametrize("physics", [(), ("weight", "hole_radius")])
+@pytest.mark.parametrize("physics", [(), ("weight", "hole_radius", "marker")])
 def test_fit_jacobian_matches_central_differences_of_full_solves(physics):
     """The fit's implicit-function Jacobian (tendon compliances and angles at the motors' given
     lengths, plus the path through the reference state; with the extra physics, the weight's
-    components and the hole radii) against central differences of whole predictions of the scene
+    components, the hole radii and a marker carried by the tip, whose arm turns with it) against central differences of whole predictions of the scene
     with each fitted parameter moved (every parameter kind, both segments; no tendon slack, where
     the tip's derivatives have a kink)."""
     from tdcr_warp.apps import hardware as hw
@@ -99,7 +99,7 @@ def test_fit_jacobian_matches_central_differences_of_full_solves(physics):
         data["robot"]["density"] = 7800.0
         data["loads"] = {"gravity": [-9.0, 2.0, -3.0]}
     spec = hw._parameter_spec(data, "tendon", physics)
-    assert len(spec) == 13 + 5 * bool(physics)  # + gravity[0..2], a hole radius per segment
+    assert len(spec) == 13 + 8 * bool(physics)  # + gravity[0..2], marker_offset[0..2], a hole radius per segment
     p = np.array([sp["value"] for sp in spec])
     lo, hi = (np.array([sp[k] for sp in spec]) for k in ("lo", "hi"))
     cur = predict(scene_from_dict(hw._apply(data, spec, p)), meas, parameters=hw._jacobian_names(data, spec),
@@ -108,7 +108,7 @@ def test_fit_jacobian_matches_central_differences_of_full_solves(physics):
     J = hw._fit_jacobian(data, spec, p, cur, np.arange(7), lo, hi)
     for j, sp in enumerate(spec):
         h = {"compliance": 1e-3, "pretension": 1e-2, "angle": 1e-5, "offset": 1e-6, "gravity": 1e-2,
-             "radius": 1e-6}[sp["kind"]]
+             "radius": 1e-6, "marker": 1e-6}[sp["kind"]]
         up, down = p.copy(), p.copy()
         up[j], down[j] = p[j] + h, max(p[j] - h, lo[j])
         a, b = (predict(scene_from_dict(hw._apply(data, spec, x)), meas, tol=1e-12)["error_mm"] for x in (up, down))

@@ -239,9 +239,17 @@ def predict(scene: Scene, meas: Measurements, device=None, initial=None, before=
     return _predicted(hw, meas, sol, retried, time.perf_counter() - t0)
 
 
+def marker(hw: dict, sol) -> np.ndarray:
+    """(B, 3) [m] the marker's offset from each tip in the world frame: ``marker_offset`` as given
+    (marker_frame "world") or turned with the tip (marker_frame "tip")."""
+    m = np.array(hw.get("marker_offset", [0.0, 0.0, 0.0]), dtype=float)
+    if hw.get("marker_frame", "world") == "tip":
+        return np.einsum("bij,j->bi", sol.tip_rotation, m)
+    return np.broadcast_to(m, sol.tip_position.shape)
+
+
 def _predicted(hw: dict, meas: Measurements, sol, retried: np.ndarray, wall: float) -> dict:
-    point = 1e3 * (sol.tip_position + np.array(hw.get("marker_offset", [0, 0, 0])) +
-                   np.array(hw.get("base_offset", [0, 0, 0])))
+    point = 1e3 * (sol.tip_position + marker(hw, sol) + np.array(hw.get("base_offset", [0, 0, 0])))
     return {"point_mm": point, "error_mm": point - meas.tip_mm, "converged": sol.converged,
             "unstable": sol.converged & ~sol.success, "slack": sol.slack, "retried": retried, "solution": sol,
             "wall_s": wall}
@@ -337,7 +345,9 @@ FIT_PARAMETERS = ("compliance", "pretension", "angle", "base_offset")
 # length as gravity[0..2] on the scene's (known) density: its direction is the robot's mounting,
 # its size fixes the scale the tip data cannot (weight_report: the Young's modulus it implies for
 # g = 9.81); "hole_radius[s]", the distance of segment s's tendons from the backbone [m].
-PHYSICS = ("weight", "hole_radius")
+# "marker": the marker's offset carried by the tip (marker_frame "tip", its body-frame offset
+# fitted) instead of fixed in the world.
+PHYSICS = ("weight", "hole_radius", "marker")
 
 
 def _segments(data: dict) -> list[list[int]]:
@@ -391,6 +401,10 @@ def _physics_spec(data: dict, segs: list[list[int]], physics) -> list[dict]:
         g = data.get("loads", {}).get("gravity", [0.0, 0.0, 0.0])
         spec += [{"name": f"gravity[{i}]", "kind": "gravity", "on": i, "value": float(g[i]), "lo": -100.0,
                   "hi": 100.0, "step": 1e-2} for i in range(3)]
+    if "marker" in physics:
+        m = data["hardware"].get("marker_offset", [0.0, 0.0, 0.0])
+        spec += [{"name": f"marker_offset[{i}]", "kind": "marker", "on": i, "value": float(m[i]), "lo": -0.1,
+                  "hi": 0.1, "step": 0.0} for i in range(3)]
     if "hole_radius" in physics:
         t = data["tendons"]
         spec += [{"name": f"hole_radius[{s}]", "kind": "radius", "on": g,
@@ -419,6 +433,10 @@ def _apply(data0: dict, spec: list[dict], p: np.ndarray) -> dict:
             loads = data.setdefault("loads", {})
             loads["gravity"] = list(loads.get("gravity", [0.0, 0.0, 0.0]))
             loads["gravity"][sp["on"]] = float(v)
+        elif sp["kind"] == "marker":
+            data["hardware"]["marker_frame"] = "tip"
+            data["hardware"]["marker_offset"] = list(data["hardware"].get("marker_offset", [0.0, 0.0, 0.0]))
+            data["hardware"]["marker_offset"][sp["on"]] = float(v)
         elif sp["kind"] == "radius":
             for k in sp["on"]:
                 x, y = t[k]["offset"]
@@ -483,11 +501,14 @@ def _fit_jacobian(data: dict, spec: list[dict], p: np.ndarray, cur: dict, rows: 
     ``cur`` (solved with the ``_jacobian_names`` parameters), by the implicit-function theorem: a
     parameter moves the tip at the motors' given lengths (``parameter_jacobian``) and through the
     reference state, which sets those lengths (avail = reference - q: minus ``tip_jacobian`` times
-    ``_reference_rates``); the base offset's columns are the identity. No solve is repeated."""
+    ``_reference_rates``); a marker carried by the tip moves with its rotation too (_point_rates);
+    the base offset's columns are the identity, the marker's the tip's axes. No solve is repeated."""
     sol = cur["solution"]
     names = _jacobian_names(data, spec)
-    tendons = _apply(data, spec, p)["tendons"]
-    PJ, TJ = sol.parameter_jacobian[rows, :3], sol.tip_jacobian[rows, :3]
+    now = _apply(data, spec, p)
+    tendons = now["tendons"]
+    arm = marker(now["hardware"], sol)[rows] * (now["hardware"].get("marker_frame", "world") == "tip")
+    PJ, TJ = _point_rates(sol.parameter_jacobian[rows], arm), _point_rates(sol.tip_jacobian[rows], arm)
     J = np.zeros((len(rows), 3, len(p)))
     J -= np.einsum("bik,kj->bij", TJ, _reference_rates(data, spec, p, lo, hi))
     for j, sp in enumerate(spec):
@@ -503,7 +524,23 @@ def _fit_jacobian(data: dict, spec: list[dict], p: np.ndarray, cur: dict, rows: 
                 J[:, :, j] += sum(u[c] * PJ[:, :, names.index(f"tendons[{k}].offset[{c}]")] for c in range(2))
         elif sp["kind"] == "offset":
             J[:, sp["on"], j] = 1.0
+        elif sp["kind"] == "marker":  # the body-frame offset's column of the tip's rotation
+            J[:, :, j] = sol.tip_rotation[rows][:, :, sp["on"]]
     return J.reshape(3 * len(rows), len(p))
+
+
+def _point_rates(pose_rates: np.ndarray, arm: np.ndarray) -> np.ndarray:
+    """(M, 3, P) the rates of the measured point from those of the tip's pose (M, 6, P) (position,
+    then the world rotation vector): a marker at ``arm`` (M, 3) [m] from the tip, carried by it,
+    moves by d theta x arm besides (zero arm: fixed in the world)."""
+    return pose_rates[:, :3] - np.einsum("bij,bjp->bip", _skew(arm), pose_rates[:, 3:6])
+
+
+def _skew(a: np.ndarray) -> np.ndarray:
+    """(M, 3, 3) the cross-product matrices of (M, 3) vectors."""
+    z = np.zeros(len(a))
+    return np.stack([np.stack([z, -a[:, 2], a[:, 1]], -1), np.stack([a[:, 2], z, -a[:, 0]], -1),
+                     np.stack([-a[:, 1], a[:, 0], z], -1)], axis=1)
 
 
 def fit(data: dict, meas: Measurements, *, detail: str = "tendon", physics=(), max_iter: int = 30, device=None,

@@ -30,9 +30,10 @@ def register(subparsers) -> None:
     p.add_argument("--detail", choices=["segment", "tendon"], default="tendon",
                    help="a rotation per tendon and a compliance per segment (default), or one per segment "
                         "and one compliance")
-    p.add_argument("--physics", nargs="+", choices=["weight", "hole_radius"], default=[],
+    p.add_argument("--physics", nargs="+", choices=["weight", "hole_radius", "marker"], default=[],
                    help="also fit the robot's weight and mounting (needs [robot] density: its weight per length "
-                        "as gravity) and/or each segment's tendon hole radius")
+                        "as gravity), each segment's tendon hole radius, and/or the marker's offset carried by "
+                        "the tip (in its body frame)")
     p.add_argument("--residual", action="store_true",
                    help="also fit a learned correction with an uncertainty on what the fitted physics misses "
                         "(a Gaussian process over the commands; residual.npz, for predict --residual)")

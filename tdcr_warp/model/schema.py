@@ -324,7 +324,11 @@ _TABLES = (
     Table("hardware", "A robot on the bench (`tdcr-warp fit`, `predict`): measurement columns and frames.", keys=(
         Key("servo_columns", "strings", "-", "the measurement CSV's column of each tendon, in tendon order",
             "(K,)", REQUIRED),
-        Key("marker_offset", "numbers", "m", "the marker above the tip (world frame)", "(3,)", [0.0, 0.0, 0.0]),
+        Key("marker_offset", "numbers", "m", "the marker's offset from the tip, in marker_frame", "(3,)",
+            [0.0, 0.0, 0.0]),
+        Key("marker_frame", "string", "-", "the frame of marker_offset: fixed in the world (\"world\") or carried "
+            "by the tip (\"tip\": the tip's body frame, the marker turning with it)", default="world",
+            allowed=("world", "tip")),
         Key("base_offset", "numbers", "m", "the mocap frame's offset from the base (world frame)", "(3,)",
             [0.0, 0.0, 0.0]),
     )),
