@@ -211,3 +211,58 @@ def test_dynamics_refused():
     rob = tw.Robot(length=0.5, sections=[steel(0.5, 1e-3)])
     with pytest.raises(InputError, match=r"not with dynamics"):
         tw.Simulator(rob, dt=1e-3)
+
+
+SCENE = """
+[robot]
+length = 0.2
+
+[[sections]]
+end = 0.1
+radius = [0.01, 0.0075]
+youngs_modulus = 1e6
+poisson_ratio = 0.45
+density = 1100
+
+[[sections]]
+end = 0.2
+radius = [0.0075, 0.005]
+inner_radius = 0.002
+youngs_modulus = 1.5e6
+shear_modulus = 0.5e6
+density = 1100
+
+[loads]
+gravity = [-9.81, 0, 0]
+
+[actuation]
+tensions = [0.3]
+
+[[tendons]]
+offset = [0.004, 0.0]
+"""
+
+
+def test_scene_sections(tmp_path):
+    """[[sections]] read into Robot.sections (a number is constant, a pair linear); [robot]'s four backbone keys
+    are refused beside them and required without them; a bad section is named by its table."""
+    from tdcr_warp.io.scene import load_scene
+
+    path = tmp_path / "arm.toml"
+    path.write_text(SCENE)
+    rob = load_scene(path).robot
+    assert [s.end for s in rob.sections] == [0.1, 0.2]
+    assert rob.sections[0].radius.tolist() == [0.01, 0.0075] and rob.sections[1].inner_radius.tolist() == [0.002] * 2
+    assert rob.radius.tolist() == [0.01] and rob.sections[1].shear.tolist() == [0.5e6] * 2
+    path.write_text(SCENE.replace("length = 0.2", "length = 0.2\nradius = 0.01"))
+    with pytest.raises(InputError, match=r"\[robot\].radius = 0.01 with \[\[sections\]\]"):
+        load_scene(path)
+    path.write_text(SCENE.replace("inner_radius = 0.002", "inner_radius = 0.008"))
+    with pytest.raises(InputError, match=r"\[\[sections\]\] #2: section radius must be greater than inner_radius"):
+        load_scene(path)
+    path.write_text(SCENE.replace("end = 0.2", "end = 0.25"))
+    with pytest.raises(InputError, match=r"sections\[1\].end = 0.25 m must be the rod length"):
+        load_scene(path)
+    path.write_text(SCENE.split("[[sections]]")[0] + "youngs_modulus = 1e6\n" + SCENE[SCENE.index("[loads]"):])
+    with pytest.raises(InputError, match=r"missing key 'poisson_ratio' in \[robot\] \(or describe the backbone"):
+        load_scene(path)
