@@ -18,8 +18,8 @@ from tdcr_warp.model.backbone import Section, check_sections, section_properties
 from tdcr_warp.model.checks import InputError, as_field, check_values, real_array, require_memory
 from tdcr_warp.model.world import Obstacle, TipConstraint
 
-__all__ = ["InputError", "Obstacle", "PointForce", "Robot", "Section", "Tendon", "TipConstraint", "check_command", "check_displacements",
-           "check_slip", "check_tensions", "real_array", "require_memory", "route_table"]
+__all__ = ["InputError", "Obstacle", "PointForce", "Robot", "Section", "Tendon", "TipConstraint", "check_command",
+           "check_displacements", "check_slip", "check_tensions", "real_array", "require_memory", "route_table"]
 
 MAX_DISKS = 100_000  # spacer disks of a robot: each is a grid node, and StaticOptions.nodes <= 100000
 
