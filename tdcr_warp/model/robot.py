@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from tdcr_warp.model.backbone import Section, check_sections, section_properties, section_table
+from tdcr_warp.model.backbone import SEC_COLUMNS, Section, check_sections, section_properties, section_table
 from tdcr_warp.model.checks import InputError, as_field, check_values, real_array, require_memory
 from tdcr_warp.model.world import Obstacle, TipConstraint
 
@@ -194,7 +194,7 @@ class Robot:
     tip_constraint: object = None
     sections: tuple = ()
     batch_size: int = field(init=False)
-    section_rows: np.ndarray = field(init=False, repr=False, compare=False)  # (S, 12) packed sections (backbone.py)
+    section_rows: np.ndarray = field(init=False, repr=False, compare=False)  # (S, 12): backbone.section_table
 
     def __post_init__(self):
         _set_sections(self)
@@ -344,7 +344,7 @@ def _set_sections(robot: Robot) -> None:
     """Without sections: the default backbone numbers where none is given. With sections: the
     sections checked, and youngs_modulus, poisson_ratio, radius and density the first section's at
     the base (a value given must be that one: the sections give the backbone)."""
-    table = np.zeros((0, 12))
+    table = np.zeros((0, len(SEC_COLUMNS)))
     if robot.sections:
         sections = check_sections(robot.sections, as_field("length", robot.length, ()))
         object.__setattr__(robot, "sections", sections)
