@@ -126,6 +126,16 @@ def test_rk4_keeps_fourth_order_with_nodes_on_section_ends():
     assert np.all(np.abs(orders - 4) < 0.3), (errs, orders)
 
 
+def test_float32_agrees_with_float64_within_its_precision():
+    """float32 finds the section ends among the nodes too (both rounded alike): the tip within 1e-5 m, the
+    bound test_statics.py sets for a constant rod."""
+    rob = tw.Robot(**TENDON_ROBOT)
+    f64 = tw.solve_static(rob, [[1.5, 0.8]], nodes=100)
+    f32 = tw.solve_static(rob, [[1.5, 0.8]], nodes=100, precision="float32")
+    assert f32.converged.all()
+    assert np.linalg.norm(f32.tip_position - f64.tip_position) < 1e-5
+
+
 def stepped_critical_load(EI1, EI2, a, b):
     """The buckling load of a cantilever, EI1 on the base's a, EI2 on the tip's b, under a dead axial tip
     load: tan(k1 a) tan(k2 b) = k2 / k1, k_i = sqrt(P / EI_i), the least root."""
@@ -164,6 +174,16 @@ def test_soft_tapered_arm_sags_under_its_weight_to_a_stable_equilibrium():
     assert sol.tip_position[0, 0] < -0.05  # a sag of a quarter of the length or more
     mass = math.pi * rho * L * (r0**2 + r0 * r1 + r1**2) / 3
     assert np.abs(sol.base_wrench[0, :3] - mass * g).max() < 1e-7 * mass * 9.81
+
+
+def test_weight_of_a_later_section_counts():
+    """A weightless first section (density 0) and a heavy second one under gravity across: the base carries
+    the second section's weight (gravity compiles in where any section has a density)."""
+    secs = [tw.Section(end=0.25, radius=1e-3, youngs_modulus=E, poisson_ratio=NU, density=0.0), steel(0.5, 1e-3)]
+    sol = tw.solve_static(tw.Robot(length=0.5, sections=secs, gravity=(0, -9.81, 0)), NONE, tol=1e-13)
+    weight = RHO * math.pi * 1e-3**2 * 0.25 * 9.81
+    assert sol.converged.all()
+    assert abs(sol.base_wrench[0, 1] + weight) < 1e-7 * weight
 
 
 def test_sections_checked():

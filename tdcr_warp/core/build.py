@@ -221,7 +221,8 @@ def scene_features(robot: Robot, tendon: np.ndarray, specialize: bool, kink_load
                    tip=0 if robot.tip_constraint is None or mode != "solve" else robot.tip_constraint.count)
     if not specialize:
         return ALL._replace(**tendons)
-    return Features(gravity=bool(np.any(robot.gravity != 0) and np.any(robot.density > 0)),
+    heavy = any(np.any(sec.density > 0) for sec in robot.sections) if robot.sections else np.any(robot.density > 0)
+    return Features(gravity=bool(np.any(robot.gravity != 0) and heavy),
                     point_loads=len(robot.point_forces) > 0 or (disks and robot.disk_mass > 0),
                     helix=spline or bool(np.any(tendon[..., [layout.T_A, layout.T_DX, layout.T_DY]] != 0)),
                     drag=bool(np.any(robot.drag != 0)), **tendons)
