@@ -11,6 +11,8 @@ family's file and keyed only by what it needs; a feature a scene lacks compiles 
   Model, Control, Step; row, rvec, dvec,         structs.py    (packed tables: layout.py)
     term_node; the slots of the BDF history
   body_strains, strains, store_slot              strains.py    constitutive law (with strain damping)
+  section_of, backbone, along, stiffness,        backbone.py   the stiffness along s: the rod table's, or
+    boundary                                                   sections with tapers and jumps
   tendon_route, tendon_tangent                   tendons.py    tendon routing
   coupled_tendon_load                            tendons.py    distributed tendon load (coupled model)
   tendon_end_loads, kink_loads                   tendons.py    tendon point loads at a node

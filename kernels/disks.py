@@ -33,6 +33,7 @@ from types import SimpleNamespace
 
 import warp as wp
 
+from .backbone import make_backbone
 from .layout import T_COMPLIANCE
 from .rod import make_point_jumps
 from .stepping import make_interval
@@ -156,13 +157,15 @@ def _guess(dtype, rod: str, features: Features):
     vec3, mat33, evec, Model, Step = v.vec3, v.mat33, v.evec, v.Model, v.Step
     term_node, tendon_route, get3, put3 = v.term_node, v.tendon_route, v.get3, v.put3
     law = make_strains(dtype, False, rod == "kirchhoff")
+    stiffness = make_backbone(dtype, False, features.sections).stiffness
 
     @wp.func
     def guess(md: Model, sp: Step, b: int, s: dtype, p: vec3, R: mat33, n: vec3, m: vec3, E: evec, node: int):
         """First chords out of ``node``: the incoming chord turned as the one before it turned
         into it (from the second disk on), else mirrored about the hole path's tangent (at the
         base: the tangent). Keeps the incoming chord for the next disk's guess."""
-        v, u = law.strains(md, sp, b, R, n, m, 0)
+        kse, kbt = stiffness(md, b, s, 0)
+        v, u = law.strains(md, sp, b, kse, kbt, R, n, m, 0)
         for k in range(md.n_tendons):
             if term_node(md, b, k) > node:
                 r, dr, _ddr = tendon_route(md, b, k, s)

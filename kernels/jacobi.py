@@ -33,6 +33,7 @@ from types import SimpleNamespace
 
 import warp as wp
 
+from .backbone import make_backbone
 from .dense6 import make_dense6
 from .drivers import module_names
 from .integration import N_BASE, make_nodes, make_residual
@@ -64,6 +65,7 @@ def make_fields(dtype, model: str, rod: str, features: Features):
     Model, Control, Step = st.Model, st.Control, st.Step
     rows = make_rows(dtype, False)
     law = make_strains(dtype, False, rod == "kirchhoff")
+    stiffness = make_backbone(dtype, False, features.sections).stiffness
     route = make_routes(dtype, False, features.helix, features.spline)
     coupled = model == "coupled"
     half = dtype(0.5)
@@ -77,7 +79,8 @@ def make_fields(dtype, model: str, rod: str, features: Features):
         Nt = n
         Mt = m
         if wp.static(coupled):
-            v, u = law.strains(md, sp, b, R, n, m, 0)
+            kse, kbt = stiffness(md, b, s, 1)
+            v, u = law.strains(md, sp, b, kse, kbt, R, n, m, 0)
             for k in range(md.n_tendons):
                 if rows.term_node(md, b, k) >= node:
                     tau = ct.tau[b, k]

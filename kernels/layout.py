@@ -26,6 +26,15 @@ ROD_WIDTH = 21
 T_X0, T_Y0, T_A, T_W, T_PHASE, T_DX, T_DY, T_MU, T_COMPLIANCE, T_SLACK_SLOPE = range(10)
 TENDON_WIDTH = 10
 
+# ``sect`` array, shape (1|B, S, SEC_WIDTH): a backbone that varies along s (tdcr_warp.model.backbone),
+# one row per section: SEC_START, SEC_END its ends [m] (nodes of the grid), then at its start the
+# value and the slope d/ds of the outer radius SEC_RO [m], inner radius SEC_RI [m], Young's modulus
+# SEC_E [Pa], shear modulus SEC_G [Pa] and density SEC_RHO [kg/m^3] (each linear in s). With
+# sections (Features.sections) the rod table's KSE, KBT hold the values at the base (scales only) and
+# FE holds the gravitational acceleration g [m/s^2]: the weight per length is rho A(s) g.
+SEC_START, SEC_END, SEC_RO, SEC_RI, SEC_E, SEC_G, SEC_RHO = 0, 1, 2, 4, 6, 8, 10
+SEC_WIDTH = 12
+
 # ``obst`` array, shape (1 or B, O, OB_WIDTH): the obstacles (world frame, SI units) and the
 # contact law of the rod with them (kernels/contact.py).
 #   OB_KIND           PLANE, SPHERE, CAPSULE, TUBE or BENT_TUBE

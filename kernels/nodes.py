@@ -15,6 +15,7 @@ from types import SimpleNamespace
 
 import warp as wp
 
+from .backbone import make_backbone
 from .contact import make_contact
 from .disks import make_disk_jumps
 from .friction import make_profiles, make_tensions
@@ -34,6 +35,7 @@ def make_node_busy(dtype, model: str, dynamic: bool, features: Features):
     rows = make_rows(dtype, dynamic)
     row, term_node = rows.row, rows.term_node
     disks = model == "disks"
+    bb = make_backbone(dtype, dynamic, features.sections)
 
     @wp.func
     def node_busy(md: Model, b: int, node: int):
@@ -53,6 +55,8 @@ def make_node_busy(dtype, model: str, dynamic: bool, features: Features):
             for j in range(md.n_points):
                 if md.pnode[row(b, md.pnode), j] == node:
                     busy = 1
+        if wp.static(features.sections):
+            busy = busy | bb.boundary(md, b, md.grid[row(b, md.grid), node])
         return busy
 
     @wp.func
@@ -88,6 +92,7 @@ def make_node_jumps(dtype, integrator: str, model: str, dynamic: bool, rod: str,
     disks = model == "disks"
     dj = make_disk_jumps(dtype, integrator, rod, features) if disks else None
     bz = make_node_busy(dtype, model, dynamic, features)
+    bb = make_backbone(dtype, dynamic, features.sections)
     node_busy = bz.node_busy
     contact_force = make_contact(dtype, dynamic).contact_force
 
@@ -113,14 +118,17 @@ def make_node_jumps(dtype, integrator: str, model: str, dynamic: bool, rod: str,
             n, _jump = point_jumps(md, b, node, n)
             return dj.disk_jumps(md, ct, sp, b, s, p, R, n, m, t0, E, node)
         tau, g, h = tensions(md, ct, b, t0, E, slot_pre, zero, zero)
-        v, u = law.strains(md, sp, b, R, n, m, slot_pre)
+        kse, kbt = bb.stiffness(md, b, s, 1)  # proximal of the node, and distal of it (kse2, kbt2)
+        kse2, kbt2 = bb.stiffness(md, b, s, 0)
+        v, u = law.strains(md, sp, b, kse, kbt, R, n, m, slot_pre)
         n, m, jump = loads.tendon_end_loads(md, ct, b, s, R, n, m, v, u, node, tau)
         n, pj = point_jumps(md, b, node, n)
-        jump = jump | pj | touch
+        jump = jump | pj | touch | bb.boundary(md, b, s)  # a jump of stiffness kinks the tendons too
         E2 = E
         if wp.static(model == "coupled" and features.kinks):
             if jump != 0:
-                n, m, E2 = loads.kink_loads(md, ct, sp, b, s, R, n, m, v, u, node, slot_pre, slot_post, t0, E, tau)
+                n, m, E2 = loads.kink_loads(md, ct, sp, b, s, R, n, m, v, u, kse2, kbt2, node, slot_pre, slot_post,
+                                            t0, E, tau)
         if wp.static(friction):
             if store != 0:
                 tau2, g2, h2 = tensions(md, ct, b, t0, E2, slot_post, zero, zero)
@@ -128,7 +136,7 @@ def make_node_jumps(dtype, integrator: str, model: str, dynamic: bool, rod: str,
                 store_node_profile(md, sp, b, slot_post, tau2, g2)
         if wp.static(dynamic):
             if store != 0:
-                v3, u3 = law.strains(md, sp, b, R, n, m, slot_post)
+                v3, u3 = law.strains(md, sp, b, kse2, kbt2, R, n, m, slot_post)
                 law.store_slot(sp, b, slot_pre, v, u, q, w, vec3(), vec3())
                 law.store_slot(sp, b, slot_post, v3, u3, q, w, vec3(), vec3())
         return n, m, E2

@@ -22,9 +22,9 @@ from types import SimpleNamespace
 
 import warp as wp
 
+from .backbone import make_backbone
 from .friction import make_profiles, make_tensions
 from .inertia import make_damping, make_inertia
-from .layout import FE, KBT, KSE
 from .strains import make_strains
 from .structs import make_rows, make_structs, tendon_vectors
 from .tendons import make_chord_rates, make_coupled_load, make_tendon_rates
@@ -89,14 +89,14 @@ def make_coupled_solves(dtype, dynamic: bool, tendons: int, friction: bool, heli
 
 @functools.cache
 def make_strain_rates(dtype, dynamic: bool, kirchhoff: bool, tendons: int, friction: bool, helix: bool,
-                      spline: bool):
-    """(v', u'): the derivative of the constitutive law, in the coupled model with the tendon load."""
+                      spline: bool, sections: bool = False):
+    """(v', u'): the derivative of the constitutive law, in the coupled model with the tendon load
+    (``sections``: with the stiffness' slope, docs/physics.md "A backbone that varies along s")."""
     vec3 = wp.types.vector(3, dtype)
     mat33 = wp.types.matrix((3, 3), dtype)
     kvec, evec = tendon_vectors(dtype, tendons)
     st = make_structs(dtype, dynamic)
     Model, Control, Step = st.Model, st.Control, st.Step
-    rvec = make_rows(dtype, dynamic).rvec
     coupled_tendon_load = make_coupled_load(dtype, dynamic, tendons, friction, helix, spline).coupled_tendon_load
     solves = make_coupled_solves(dtype, dynamic, tendons, friction, helix, spline)
     kirchhoff_solve, cosserat_solve = solves.kirchhoff_solve, solves.cosserat_solve
@@ -104,17 +104,20 @@ def make_strain_rates(dtype, dynamic: bool, kirchhoff: bool, tendons: int, frict
 
     @wp.func
     def coupled_rates(md: Model, ct: Control, sp: Step, b: int, s: dtype, R: mat33, rtn: vec3, rtm: vec3, v: vec3,
-                      u: vec3, lam_n: vec3, lam_m: vec3, dn: vec3, dm: vec3, step: int, slot: int, tau: kvec,
-                      g: kvec, h: kvec):
+                      u: vec3, kse: vec3, kbt: vec3, dkse: vec3, dkbt: vec3, lam_n: vec3, lam_m: vec3, dn: vec3,
+                      dm: vec3, step: int, slot: int, tau: kvec, g: kvec, h: kvec):
         """The coupled model [RW11]: [[Kse + c0 Bse + A, B^T], [B, Kbt + c0 Bbt + H]] [v'; u'] =
         [c; d]. The tendon load follows from the solve: a + A v' + G u' = a + c - (Kse + c0 Bse) v',
-        likewise for the moment; it moves into dn, dm. Returns v', u', dn, dm, dE and whether dE is
-        set (friction)."""
+        likewise for the moment; it moves into dn, dm. With sections the stiffness' slope dkse,
+        dkbt moves to the right: Kse' (v - v*) = Kse' Kse^-1 R^T n, Kbt' (u - u*) = Kbt' Kbt^-1 R^T m
+        (statics). Returns v', u', dn, dm, dE and whether dE is set (friction)."""
         As, Bs, Hs, a_sum, b_sum, pulls = coupled_tendon_load(md, ct, b, s, u, v, step, tau)
-        kse = rvec(md, b, KSE)
-        kbt = rvec(md, b, KBT)
         c = lam_n - wp.cross(u, rtn) - a_sum
         d = lam_m - wp.cross(v, rtn) - wp.cross(u, rtm) - b_sum
+        if wp.static(sections):
+            d = d - wp.cw_mul(dkbt, wp.cw_div(rtm, kbt))
+            if wp.static(not kirchhoff):
+                c = c - wp.cw_mul(dkse, wp.cw_div(rtn, kse))
         if wp.static(dynamic):
             kse, kbt, c, d = damped_system(md, sp, b, slot, kse, kbt, c, d)
         dv = vec3()
@@ -136,14 +139,18 @@ def make_strain_rates(dtype, dynamic: bool, kirchhoff: bool, tendons: int, frict
         return dv, du, dn, dm, dE, rated
 
     @wp.func
-    def point_rates(md: Model, b: int, rtn: vec3, rtm: vec3, v: vec3, u: vec3, lam_n: vec3, lam_m: vec3):
+    def point_rates(md: Model, b: int, rtn: vec3, rtm: vec3, v: vec3, u: vec3, kse: vec3, kbt: vec3, dkse: vec3,
+                    dkbt: vec3, lam_n: vec3, lam_m: vec3):
         """The point model: the rod's own (v', u') (the tendon paths' turning follows from them)."""
         dv = vec3()
-        kse = rvec(md, b, KSE)
-        kbt = rvec(md, b, KBT)
-        du = wp.cw_div(lam_m - wp.cross(v, rtn) - wp.cross(u, rtm), kbt)
+        c = lam_n - wp.cross(u, rtn)
+        d = lam_m - wp.cross(v, rtn) - wp.cross(u, rtm)
+        if wp.static(sections):
+            c = c - wp.cw_mul(dkse, wp.cw_div(rtn, kse))
+            d = d - wp.cw_mul(dkbt, wp.cw_div(rtm, kbt))
+        du = wp.cw_div(d, kbt)
         if wp.static(not kirchhoff):
-            dv = wp.cw_div(lam_n - wp.cross(u, rtn), kse)
+            dv = wp.cw_div(c, kse)
         return dv, du
 
     return SimpleNamespace(coupled_rates=coupled_rates, point_rates=point_rates)
@@ -152,23 +159,22 @@ def make_strain_rates(dtype, dynamic: bool, kirchhoff: bool, tendons: int, frict
 @functools.cache
 def make_rhs(dtype, model: str, dynamic: bool, rod: str, features: Features):
     """``rhs``: d/ds of (p, R, n, m, q, w, E)."""
-    vec3 = wp.types.vector(3, dtype)
-    mat33 = wp.types.matrix((3, 3), dtype)
+    vec3, mat33 = wp.types.vector(3, dtype), wp.types.matrix((3, 3), dtype)
     zero = dtype(0.0)
     K, friction, kirchhoff = features.tendons, features.friction, rod == "kirchhoff"
     route = (features.helix, features.spline)
     kvec, evec = tendon_vectors(dtype, K)
     st = make_structs(dtype, dynamic)
     Model, Control, Step = st.Model, st.Control, st.Step
-    rows = make_rows(dtype, dynamic)
-    row, rvec = rows.row, rows.rvec
+    row = make_rows(dtype, dynamic).row
     law = make_strains(dtype, dynamic, kirchhoff)
     tensions = make_tensions(dtype, dynamic, K, friction).tensions
     store_profile = make_profiles(dtype, dynamic, K).store_profile
     tendon_rates = make_tendon_rates(dtype, dynamic, K, friction, *route).tendon_rates
     chord_rates = make_chord_rates(dtype, K).chord_rates if model == "disks" else None
     inertia_loads = make_inertia(dtype, features.drag).inertia_loads
-    rates = make_strain_rates(dtype, dynamic, kirchhoff, K, friction, *route)
+    rates = make_strain_rates(dtype, dynamic, kirchhoff, K, friction, *route, features.sections)
+    along = make_backbone(dtype, dynamic, features.sections).along
 
     @wp.func
     def rhs(md: Model, ct: Control, sp: Step, b: int, s: dtype, p: vec3, R: mat33, n: vec3, m: vec3, q: vec3,
@@ -178,7 +184,8 @@ def make_rhs(dtype, model: str, dynamic: bool, rod: str, features: Features):
         Rt = wp.transpose(R)
         rtn = Rt * n  # Kse (v - v*) + Bse v_t
         rtm = Rt * m  # Kbt (u - u*) + Bbt u_t
-        v, u = law.body_strains(md, sp, b, rtn, rtm, slot)
+        kse, kbt, dkse, dkbt, fe = along(md, b, s, step)
+        v, u = law.body_strains(md, sp, b, kse, kbt, rtn, rtm, slot)
         h_step = zero  # the interval and the curvature set the stick-slip blend (friction only)
         curv = zero
         if wp.static(friction):
@@ -195,7 +202,7 @@ def make_rhs(dtype, model: str, dynamic: bool, rod: str, features: Features):
         dw = vec3()
         lam_n = vec3()  # body-frame distributed load terms, moved to the left
         if wp.static(features.gravity):
-            lam_n = -(Rt * rvec(md, b, FE))
+            lam_n = -(Rt * fe)
         lam_m = vec3()
         if wp.static(dynamic):
             dq, dw, lam_n, lam_m = inertia_loads(md, sp, b, slot, v, u, q, w, lam_n)
@@ -212,10 +219,10 @@ def make_rhs(dtype, model: str, dynamic: bool, rod: str, features: Features):
         dE = evec()
         rated = int(0)  # dE already from the friction passes
         if wp.static(model == "coupled"):
-            dv, du, dn, dm, dE, rated = rates.coupled_rates(md, ct, sp, b, s, R, rtn, rtm, v, u, lam_n, lam_m, dn, dm,
-                                                            step, slot, tau, g, h)
+            dv, du, dn, dm, dE, rated = rates.coupled_rates(md, ct, sp, b, s, R, rtn, rtm, v, u, kse, kbt, dkse, dkbt,
+                                                            lam_n, lam_m, dn, dm, step, slot, tau, g, h)
         elif wp.static(friction):
-            dv, du = rates.point_rates(md, b, rtn, rtm, v, u, lam_n, lam_m)
+            dv, du = rates.point_rates(md, b, rtn, rtm, v, u, kse, kbt, dkse, dkbt, lam_n, lam_m)
         if wp.static(model == "disks"):
             dE = chord_rates(md, b, step)
         elif wp.static(K > 0):

@@ -35,9 +35,9 @@ STATE = 24  # p (3), R (9, row-major), n (3), m (3), q (3), w (3)
 
 
 def segmentable(model: str, features: Features) -> bool:
-    """Whether a variant can be segmented: no tendon states, constrained tip or disks (only the
-    rod's own state crosses a segment boundary)."""
-    return not (features.tendons or features.tip or model == "disks")
+    """Whether a variant can be segmented: no tendon states, constrained tip, disks or sections (only
+    the rod's own state crosses a segment boundary; sections: not tested with it)."""
+    return not (features.tendons or features.tip or model == "disks" or features.sections)
 
 
 @functools.cache

@@ -14,7 +14,7 @@ from types import SimpleNamespace
 
 import warp as wp
 
-from .layout import BBT, BSE, KBT, KSE, USTAR
+from .layout import BBT, BSE, USTAR
 from .structs import (
     SLOT_DU,
     SLOT_DV,
@@ -39,12 +39,10 @@ def make_strains(dtype, dynamic: bool, kirchhoff: bool):
     rvec, dvec = rows.rvec, rows.dvec
 
     @wp.func
-    def body_strains(md: Model, sp: Step, b: int, rtn: vec3, rtm: vec3, slot: int):
+    def body_strains(md: Model, sp: Step, b: int, kse: vec3, kbt: vec3, rtn: vec3, rtm: vec3, slot: int):
         """v, u (body frame) from the body-frame internal force R^T n and moment R^T m by the
-        constitutive law; with strain damping in dynamics: R^T n = Kse (v - v*) + Bse v_t with
-        v_t = c0 v + v_h (likewise u)."""
-        kse = rvec(md, b, KSE)
-        kbt = rvec(md, b, KBT)
+        constitutive law with the stiffness diagonals kse, kbt at s (kernels/backbone.py); with
+        strain damping in dynamics: R^T n = Kse (v - v*) + Bse v_t with v_t = c0 v + v_h (likewise u)."""
         ustar = rvec(md, b, USTAR)
         v = vec3(zero, zero, one)
         if wp.static(dynamic):
@@ -61,9 +59,9 @@ def make_strains(dtype, dynamic: bool, kirchhoff: bool):
         return v, wp.cw_div(rtm, kbt) + ustar
 
     @wp.func
-    def strains(md: Model, sp: Step, b: int, R: mat33, n: vec3, m: vec3, slot: int):
+    def strains(md: Model, sp: Step, b: int, kse: vec3, kbt: vec3, R: mat33, n: vec3, m: vec3, slot: int):
         """v, u from the world-frame n, m (see ``body_strains``)."""
-        return body_strains(md, sp, b, wp.transpose(R) * n, wp.transpose(R) * m, slot)
+        return body_strains(md, sp, b, kse, kbt, wp.transpose(R) * n, wp.transpose(R) * m, slot)
 
     @wp.func
     def store_slot(sp: Step, b: int, slot: int, v: vec3, u: vec3, q: vec3, w: vec3, dv: vec3, du: vec3):

@@ -48,9 +48,11 @@ def make_structs(dtype, dynamic: bool):
         obst: wp.array3d(dtype=dtype)  # (1|B, O, OB_WIDTH) obstacles and the contact law (kernels/contact.py)
         tipc: wp.array2d(dtype=dtype)  # (1|B, TC_WIDTH) a constrained tip: the point and the directions held
         near: wp.array2d(dtype=int)  # (1|B, N+1) with obstacles: 1 where contact may act at a node (kernels/nodes.py)
+        sect: wp.array3d(dtype=dtype)  # (1|B, S, SEC_WIDTH) with sections: the backbone along s (kernels/backbone.py)
         n_tendons: int
         n_points: int
         n_obst: int
+        n_sect: int
 
     @wp.struct
     class Control:

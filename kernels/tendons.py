@@ -227,18 +227,20 @@ def make_node_loads(dtype, dynamic: bool, kirchhoff: bool, tendons: int, frictio
 
     @wp.func
     def kink_loads(md: Model, ct: Control, sp: Step, b: int, s: dtype, R: mat33, n1: vec3, m1: vec3, v: vec3,
-                   u: vec3, node: int, slot_pre: int, slot_post: int, t0: kvec, E: evec, tau: kvec):
+                   u: vec3, kse: vec3, kbt: vec3, node: int, slot_pre: int, slot_post: int, t0: kvec, E: evec,
+                   tau: kvec):
         """n, m (and E) after a jump at ``node`` in the coupled model: a jump of n or m kinks
         the tendons that go on (their tangent t depends on v, u), and each pushes on the
         backbone with tau+ t(s+) - tau- t(s-), the delta part of the distributed tendon load
         (with friction the kink angle adds to the turning Theta, and tau+ follows from it). It
         depends on the state after the jump, so it is found by fixed-point iteration from n1, m1
-        (the state after the other point loads; contraction ~ tau r^2 / EI, far below 1)."""
+        (the state after the other point loads; contraction ~ tau r^2 / EI, far below 1). kse, kbt:
+        the stiffness distal of the node (a section's end: the strains jump with it)."""
         n = n1
         m = m1
         E2 = E
         for _sweep in range(4):
-            v2, u2 = strains(md, sp, b, R, n, m, slot_post)
+            v2, u2 = strains(md, sp, b, kse, kbt, R, n, m, slot_post)
             tau2 = tau
             if wp.static(friction):
                 for k in range(md.n_tendons):

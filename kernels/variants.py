@@ -26,6 +26,7 @@ class Features(NamedTuple):
     spline: bool = False  # tendons routed through points (cubic segments in Model.route)
     contact: bool = False  # obstacles: a penalty contact force at every node (kernels/contact.py)
     tip: int = 0  # a constrained tip: the reaction's unknowns and residuals (3 point, 2 line, 1 plane)
+    sections: bool = False  # a backbone varying along s: stiffness, its slope and rho A from Model.sect
 
 
 ALL = Features()

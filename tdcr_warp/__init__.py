@@ -14,7 +14,7 @@ import sys
 _EXPORTS = {
     "describe_status": "tdcr_warp.model.options", "status_names": "tdcr_warp.model.options",  # the status bits
     "InputError": "tdcr_warp.model.robot", "PointForce": "tdcr_warp.model.robot", "Robot": "tdcr_warp.model.robot",
-    "Tendon": "tdcr_warp.model.robot", "Obstacle": "tdcr_warp.model.world", "TipConstraint": "tdcr_warp.model.world",
+    "Tendon": "tdcr_warp.model.robot", "Section": "tdcr_warp.model.backbone", "Obstacle": "tdcr_warp.model.world", "TipConstraint": "tdcr_warp.model.world",
     "Simulator": "tdcr_warp.physics.dynamics", "StepResult": "tdcr_warp.physics.dynamics",
     "Trajectory": "tdcr_warp.physics.dynamics",
     "StaticOptions": "tdcr_warp.physics.statics", "StaticSolution": "tdcr_warp.physics.statics",
@@ -83,5 +83,5 @@ def _package_version() -> str:
             return "unknown"
 
 
-__all__ = ["InputError", "Obstacle", "PointForce", "Robot", "Simulator", "StaticOptions", "StaticSolution",
+__all__ = ["InputError", "Obstacle", "PointForce", "Robot", "Section", "Simulator", "StaticOptions", "StaticSolution",
            "StepResult", "Tendon", "TipConstraint", "Trajectory", "describe_status", "solve_static", "status_names"]

@@ -52,7 +52,17 @@ Extended state (friction or length control): y[18 + i] = tau_i, y[18 + T + i] = 
 int kappa ds plus kink angles), y[18 + 2T + i] = ell_i (int |pb| ds), y[18 + 3T + i] = ell0_i;
 frozen for s >= l_i.
 
-A rod is a dict (SI units): length, youngs_modulus, poisson_ratio, radius, density,
+Sections (rod key "sections", optional): a backbone that varies along s. Each section is a dict with
+end [m] (the first starts at the base, each next one at the previous end, the last ends at L) and
+radius, inner_radius (default 0), youngs_modulus, shear_modulus or poisson_ratio, density: a number or
+[at its start, at its end], linear in s in between. Tube: A = pi (ro^2 - ri^2), I = pi (ro^4 - ri^4) / 4,
+J = 2 I, Kse = diag(G A, G A, E A), Kbt = diag(E I, E I, G J), fe = rho A g. Differentiating
+R^T n = Kse (v - v*) and R^T m = Kbt (u - u*) adds -Kse' (v - v*) and -Kbt' (u - u*) to the right-hand
+sides of the (v', u') system. The section ends are breakpoints: n, m continue across them, the strains
+follow the new section's stiffness, and the tendons that go on kink there (kink_loads, as above).
+Tension control without friction only.
+
+A rod is a dict (SI units): length, youngs_modulus, poisson_ratio, radius, density (or sections),
 precurvature (3,), gravity (3,), tip_force (3,), tip_moment (3,),
 tendons: list of {offset (x, y), helix_radius, turns, phase, length, tension,
                   friction, slip, control, displacement, compliance, pretension, reference_length},
@@ -88,6 +98,31 @@ def _vec3(x, default=(0.0, 0.0, 0.0)):
 def _angle(a, b):
     """Angle [rad] between unit vectors a and b (accurate for small angles)."""
     return float(np.arctan2(np.linalg.norm(_cross(a, b)), a @ b))
+
+
+class _Section:
+    """A section of a backbone that varies along s (module docstring, "Sections"): each field a number or
+    [at its start, at its end], linear in between; the shear modulus given, or E / (2 (1 + nu))."""
+
+    FIELDS = ("radius", "inner_radius", "youngs_modulus", "shear_modulus", "density")
+
+    def __init__(self, d: dict):
+        self.end = float(d["end"])
+        self.start = 0.0
+        pairs = {}
+        for name in ("radius", "inner_radius", "youngs_modulus", "poisson_ratio", "shear_modulus", "density"):
+            if d.get(name) is not None:
+                pairs[name] = np.broadcast_to(np.asarray(d[name], float), (2,)).copy()
+        pairs.setdefault("inner_radius", np.zeros(2))
+        if "shear_modulus" not in pairs:
+            pairs["shear_modulus"] = pairs["youngs_modulus"] / (2.0 * (1.0 + pairs["poisson_ratio"]))
+        self.pairs = pairs
+
+    def value(self, s, name):
+        """(value, d/ds) of field ``name`` at s."""
+        a, b = self.pairs[name]
+        slope = (b - a) / (self.end - self.start)
+        return a + slope * (s - self.start), slope
 
 
 class _Tendon:
@@ -163,24 +198,27 @@ class _Model:
             raise ValueError("model must be 'coupled' or 'point'")
         self.model = model
         self.L = L = float(rod["length"])
-        E = float(rod["youngs_modulus"])
-        nu = float(rod["poisson_ratio"])
-        r = float(rod["radius"])
-        rho = float(rod["density"])
-        G = E / (2.0 * (1.0 + nu))
-        A = np.pi * r**2
-        I = np.pi * r**4 / 4.0
-        J = 2.0 * I
-        self.EI = E * I
-        self.EA = E * A
-        self.Kse = np.diag([G * A, G * A, E * A])
-        self.Kbt = np.diag([E * I, E * I, G * J])
-        self.Kse_inv = np.diag(1.0 / np.diag(self.Kse))
-        self.Kbt_inv = np.diag(1.0 / np.diag(self.Kbt))
         self.vstar = _E3.copy()
         self.ustar = _vec3(rod.get("precurvature"))
         # loads, scaled by `scale` (continuation); precurvature is not a load
-        self.fe = scale * rho * A * _vec3(rod.get("gravity"))
+        self.g = scale * _vec3(rod.get("gravity"))
+        self.sections = [_Section(d) for d in rod.get("sections") or []]
+        if self.sections:
+            starts = [0.0] + [sec.end for sec in self.sections[:-1]]
+            for sec, s0 in zip(self.sections, starts):
+                sec.start = s0
+            if abs(self.sections[-1].end - L) > 1e-12 * L:
+                raise ValueError("the last section must end at the rod length")
+            self.sec = 0
+            self._at(0.0)  # the base's stiffness: the scales and the guess
+            self.fe = self.fe_s.copy()
+        else:
+            E = float(rod["youngs_modulus"])
+            G = E / (2.0 * (1.0 + float(rod["poisson_ratio"])))
+            r = float(rod["radius"])
+            self._set_stiffness(np.pi * r**2, np.pi * r**4 / 4.0, E, G)
+            self.fe = float(rod["density"]) * np.pi * r**2 * self.g
+            self.fe_s = self.fe
         self.tip_force = scale * _vec3(rod.get("tip_force"))
         self.tip_moment = scale * _vec3(rod.get("tip_moment"))
         self.tendons = [_Tendon(t, L, i) for i, t in enumerate(rod.get("tendons") or [])]
@@ -214,8 +252,11 @@ class _Model:
             if not (0.0 < s <= L * (1 + 1e-12)):
                 raise ValueError(f"point force at s={s} outside (0, L]")
             self.points.append((min(s, L), scale * _vec3(pf["force"])))
-        # breakpoints: group values equal up to a relative 1e-12
-        cand = sorted([t.l for t in self.tendons] + [s for s, _ in self.points] + [L])
+        if self.sections and (disp or any(t.mu > 0 for t in self.tendons)):
+            raise ValueError("sections: tension control without friction only")
+        # breakpoints (with the sections' ends): group values equal up to a relative 1e-12
+        cand = sorted([t.l for t in self.tendons] + [s for s, _ in self.points] + [L]
+                      + [sec.end for sec in self.sections[:-1]])
         bps = []
         for c in cand:
             if not bps or c - bps[-1] > 1e-12 * L:
@@ -230,6 +271,32 @@ class _Model:
         self.nfev = 0
         self.kinks = []  # kink records of the last integration (augmented state only)
         self.stop_states = {}  # full states at the s_stops of the last integration
+
+    def _set_stiffness(self, A, I, E, G):
+        self.EI = E * I
+        self.EA = E * A
+        self.Kse = np.diag([G * A, G * A, E * A])
+        self.Kbt = np.diag([E * I, E * I, G * 2.0 * I])
+        self.Kse_inv = np.diag(1.0 / np.diag(self.Kse))
+        self.Kbt_inv = np.diag(1.0 / np.diag(self.Kbt))
+
+    def _section_of(self, s):
+        """Index of the section holding s (a point inside it: no tie at an end)."""
+        return next(j for j, sec in enumerate(self.sections) if s < sec.end or j == len(self.sections) - 1)
+
+    def _at(self, s):
+        """With sections: Kse, Kbt (and inverses), their s-derivatives dKse, dKbt and the weight per
+        length fe_s at s, in the section self.sec (by its linear profiles, extended to its ends)."""
+        if not self.sections:
+            return
+        sec = self.sections[self.sec]
+        (ro, dro), (ri, dri), (E, dE), (G, dG), (rho, drho) = (sec.value(s, f) for f in _Section.FIELDS)
+        A, dA = np.pi * (ro**2 - ri**2), 2.0 * np.pi * (ro * dro - ri * dri)
+        I, dI = np.pi * (ro**4 - ri**4) / 4.0, np.pi * (ro**3 * dro - ri**3 * dri)
+        self._set_stiffness(A, I, E, G)
+        self.dKse = np.diag([dG * A + G * dA, dG * A + G * dA, dE * A + E * dA])
+        self.dKbt = np.diag([dE * I + E * dI, dE * I + E * dI, 2.0 * (dG * I + G * dI)])
+        self.fe_s = rho * A * self.g
 
     def length_rate(self, t):
         """Rough d ell0 / d tau [m/N] of tendon t on a straight rod (a scale, not a model)."""
@@ -283,6 +350,7 @@ class _Model:
 
     def rhs(self, s, y, tendons):
         self.nfev += 1
+        self._at(s)
         R = y[3:12].reshape(3, 3)
         n = y[12:15]
         m = y[15:18]
@@ -334,9 +402,11 @@ class _Model:
             M[3:, 3:] = Kbt + Hsum
             nv = Kse @ (v - self.vstar)
             rhs6 = np.concatenate([
-                -_cross(u, nv) - R.T @ self.fe - asum,
+                -_cross(u, nv) - R.T @ self.fe_s - asum,
                 -_cross(u, Kbt @ (u - self.ustar)) - _cross(v, nv) - bsum,
             ])
+            if self.sections:  # d/ds of Kse (v - v*) and Kbt (u - u*): the stiffness' slope
+                rhs6 -= np.concatenate([self.dKse @ (v - self.vstar), self.dKbt @ (u - self.ustar)])
             if fr:
                 x, kf, cf = self._friction_solve(M, rhs6, [(C, g, W) for _, C, g, W in fr])
                 for (i, _, _, _), kk in zip(fr, kf):
@@ -349,16 +419,18 @@ class _Model:
             if fr:
                 ft = ft + R @ cf[:3]
                 lt = lt + R @ cf[3:]
-            dn = -(self.fe + ft)
+            dn = -(self.fe_s + ft)
             dm = -_cross(dp, n) - lt
         else:
-            dn = -self.fe
+            dn = -self.fe_s
             dm = -_cross(dp, n)
             if aug and tendons:
                 # point model: the rod's own v', u' (no tendon terms) set the tendon turning
                 nv = Kse @ (v - self.vstar)
-                dv = self.Kse_inv @ (-_cross(u, nv) - R.T @ self.fe)
-                du = self.Kbt_inv @ (-_cross(u, Kbt @ (u - self.ustar)) - _cross(v, nv))
+                c, d = -_cross(u, nv) - R.T @ self.fe_s, -_cross(u, Kbt @ (u - self.ustar)) - _cross(v, nv)
+                if self.sections:
+                    c, d = c - self.dKse @ (v - self.vstar), d - self.dKbt @ (u - self.ustar)
+                dv, du = self.Kse_inv @ c, self.Kbt_inv @ d
                 for t in tendons:
                     r, dr, ddr = t.routing(s)
                     pb = _cross(u, r) + dr + v
@@ -383,6 +455,7 @@ class _Model:
 
     def termination_load(self, t, y):
         """(F_i, L_i) of tendon t ending at s = t.l, from the state y just before l_i."""
+        self._at(t.l)
         R = y[3:12].reshape(3, 3)
         v, u = self.strains(R, y[12:15], y[15:18])
         r, dr, _ = t.routing(t.l)
@@ -392,7 +465,8 @@ class _Model:
         return F, Lm
 
     def tangents(self, s, y, tendons):
-        """World-frame unit tangents R pb/|pb| of `tendons` at s for state y."""
+        """World-frame unit tangents R pb/|pb| of `tendons` at s for state y (stiffness: section self.sec)."""
+        self._at(s)
         R = y[3:12].reshape(3, 3)
         v, u = self.strains(R, y[12:15], y[15:18])
         out = []
@@ -419,7 +493,11 @@ class _Model:
             # tendons that continue through b kink where the strains jump; the kink applies
             # tau_j (t_j+ - t_j-) (and its moment) to the backbone. The post-jump state is
             # implicit in t_j+; fixed-point iteration (contraction ~ tau / stiffness).
+            # With sections the strains after b follow the next section's stiffness.
             tm = self.tangents(b, y_minus, cont)
+            if self.sections:
+                self.sec = self._section_of(0.5 * (b + self.breakpoints[k + 1]))
+                self._at(b)
             y_expl = y.copy()
             for _ in range(100):
                 tp = self.tangents(b, y, cont)
@@ -441,6 +519,9 @@ class _Model:
         tau+ t+ - tau- t- (coupled, kink_loads), tension jump tau+ = tau- exp(-mu sigma angle)
         (kink_loads), turning += angle (always: Theta is the geometric turning)."""
         tm = self.tangents(b, y_minus, cont)
+        if self.sections:  # the strains after b: the next section's stiffness
+            self.sec = self._section_of(0.5 * (b + self.breakpoints[self.breakpoints.index(b) + 1]))
+            self._at(b)
         tau_m = [y_minus[18 + t.idx] for t in cont]
         y_expl = y.copy()
         push = self.kink_loads and self.model == "coupled"
@@ -498,6 +579,8 @@ class _Model:
             act = self.active[k]
             fun = lambda s, yy, act=act: self.rhs(s, yy, act)  # noqa: E731
             inner = stops[(stops > s0) & (stops < b)]
+            if self.sections:
+                self.sec = self._section_of(0.5 * (s0 + b))
             for e in list(inner) + [b]:
                 if e > s0:
                     sol = solve_ivp(fun, (s0, e), y, method=method, rtol=rtol, atol=atol,

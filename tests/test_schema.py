@@ -114,6 +114,18 @@ def _full_scene() -> dict:
     return d
 
 
+def _sections_scene() -> dict:
+    """The full scene with [[sections]] in place of [robot]'s backbone keys, without what sections are not
+    solved with (obstacles, a held tip)."""
+    d = _full_scene()
+    robot = d["robot"]
+    d["sections"] = [{"end": robot["length"], "radius": [robot.pop("radius"), 1e-3], "inner_radius": 0.0,
+                      "youngs_modulus": robot.pop("youngs_modulus"), "poisson_ratio": robot.pop("poisson_ratio"),
+                      "density": robot.pop("density")}]
+    del d["obstacles"], d["tip"]
+    return d
+
+
 def _tables_of(d: dict, name: str) -> list:
     node = d
     for part in name.split("."):
@@ -123,7 +135,7 @@ def _tables_of(d: dict, name: str) -> list:
 
 @pytest.mark.parametrize("table", list(SCHEMA))
 def test_an_undocumented_key_is_an_error_naming_it(table):
-    d = _full_scene()
+    d = _sections_scene() if table == "sections" else _full_scene()
     scene_from_dict(copy.deepcopy(d))
     _tables_of(d, table)[-1]["undocumented_key"] = 1.25
     with pytest.raises(InputError) as info:

@@ -19,6 +19,7 @@ import warp as wp
 from tdcr_warp.kernels import layout
 from tdcr_warp.kernels.structs import SLOT_WIDTH
 from tdcr_warp.kernels.variants import ALL, Features
+from tdcr_warp.model.backbone import section_properties
 from tdcr_warp.model.options import check_model_support
 from tdcr_warp.model.robot import InputError, Robot, route_table
 
@@ -127,12 +128,39 @@ def _columns(cols: list[np.ndarray], width: int) -> np.ndarray:
 
 
 def pack_rod(robot: Robot) -> np.ndarray:
-    """Per-rod parameter rows, shape (1 or B, layout.ROD_WIDTH)."""
+    """Per-rod parameter rows, shape (1 or B, layout.ROD_WIDTH). With sections, the stiffness at the
+    base (the scales) and in FE the gravitational acceleration (the kernels weigh rho A(s) g)."""
     sec = robot.section()
-    fe = (robot.density * sec["area"])[:, None] * robot.gravity
+    fe = robot.gravity if robot.sections else (robot.density * sec["area"])[:, None] * robot.gravity
     L, EI = robot.length[:, None], sec["kbt"][:, :1]
     return _columns([sec["kse"], sec["kbt"], robot.precurvature, fe, robot.tip_force, robot.tip_moment, L,
                      EI / (L * L), EI / L], layout.ROD_WIDTH)
+
+
+def pack_sections(robot: Robot, grid: np.ndarray) -> np.ndarray:
+    """(Bg, S, layout.SEC_WIDTH) the sections of each grid row, their ends the nodes they fall on
+    (exactly: the kernels find a section's end among the nodes); (1, 1, SEC_WIDTH) of zeros without."""
+    table = robot.section_rows
+    if not len(table):
+        return np.zeros((1, 1, layout.SEC_WIDTH))
+    out = np.repeat(table[None], grid.shape[0], axis=0)
+    for row, g in zip(out, grid):
+        ends = g[np.abs(g[:, None] - table[None, :, layout.SEC_END]).argmin(axis=0)]
+        row[:, layout.SEC_END] = ends
+        row[1:, layout.SEC_START] = ends[:-1]
+    return out
+
+
+def weight_moments(robot: Robot) -> tuple[np.ndarray, np.ndarray]:
+    """(1,) a robot's sections' mass int_0^L rho A ds [kg] and its first moment int_0^L s rho A ds
+    [kg m], by 3-point Gauss-Legendre per section (exact: rho A is of degree 3 in s)."""
+    x, w = np.polynomial.legendre.leggauss(3)
+    table = robot.section_rows
+    a, b = table[:, :1], table[:, 1:2]
+    s = 0.5 * (a + b) + 0.5 * (b - a) * x
+    wt = 0.5 * (b - a) * w
+    rho_a = section_properties(table, s)["rho_area"]
+    return np.array([np.sum(wt * rho_a)]), np.array([np.sum(wt * s * rho_a)])
 
 
 def pack_dynamics(robot: Robot) -> np.ndarray:
@@ -189,11 +217,12 @@ def scene_features(robot: Robot, tendon: np.ndarray, specialize: bool, kink_load
     states *= 4 if disks else 1
     spline = any(t.routing == "points" for t in robot.tendons)
     tendons = dict(kinks=kink_loads, friction=friction, tendons=states, displaced=displaced, spline=spline,
-                   contact=len(robot.obstacles) > 0,
+                   contact=len(robot.obstacles) > 0, sections=bool(robot.sections),
                    tip=0 if robot.tip_constraint is None or mode != "solve" else robot.tip_constraint.count)
     if not specialize:
         return ALL._replace(**tendons)
-    return Features(gravity=bool(np.any(robot.gravity != 0) and np.any(robot.density > 0)),
+    heavy = any(np.any(sec.density > 0) for sec in robot.sections) if robot.sections else np.any(robot.density > 0)
+    return Features(gravity=bool(np.any(robot.gravity != 0) and heavy),
                     point_loads=len(robot.point_forces) > 0 or (disks and robot.disk_mass > 0),
                     helix=spline or bool(np.any(tendon[..., [layout.T_A, layout.T_DX, layout.T_DY]] != 0)),
                     drag=bool(np.any(robot.drag != 0)), **tendons)
@@ -206,7 +235,8 @@ class Tables:
     rod, dyn, tendon, pforce: see kernels/layout.py; grid (1|B, N+1) [m]; term_node (1|B, K)
     and pnode (1|B, P): node indices; dnext (1|B, N+1): the disk model's next disk from node 0
     and every disk (``disk_nodes``; (1, 1) of -1 in the other models); obst (1|B, O, OB_WIDTH): the
-    obstacles (``pack_obstacles``); tipc (1|B, TC_WIDTH): a constrained tip (zeros: none); tendon_len (1|B, K): termination arc lengths [m] (the
+    obstacles (``pack_obstacles``); tipc (1|B, TC_WIDTH): a constrained tip (zeros: none); sect (1|B, S, SEC_WIDTH): the
+    backbone's sections (``pack_sections``); tendon_len (1|B, K): termination arc lengths [m] (the
     kernels' tendon lengths are relative to them); route (1, K, S, 9): the spline segments of tendons routed
     through points (robot.route_table); tmode (1, K): the shooting unknown 6 + j of each
     displacement-controlled tendon (-1: tension control); features: the physics the robot
@@ -226,6 +256,7 @@ class Tables:
     tendon_len: np.ndarray
     obst: np.ndarray
     tipc: np.ndarray
+    sect: np.ndarray
     features: Features
     straight: StraightRod
 
@@ -237,7 +268,8 @@ class Tables:
         if disks:
             check_disk_model(robot, tendon_len)
         point_s, point_f = robot.pack_point_forces(disk_weights=disks)
-        knots = [t.points[1:-1, 0] for t in robot.tendons if t.routing == "points"] + ([robot.disks] if disks else [])
+        knots = ([t.points[1:-1, 0] for t in robot.tendons if t.routing == "points"] + ([robot.disks] if disks else [])
+                 + ([robot.section_rows[:-1, layout.SEC_END]] if robot.sections else []))
         grid, term_node, point_node = make_grid(robot.length, tendon_len, point_s, nodes,
                                                 np.concatenate(knots)[None] if knots else None)
         dnext = disk_nodes(grid, robot.disks) if disks else np.full((1, 1), -1, dtype=np.int32)
@@ -248,7 +280,7 @@ class Tables:
             tmode[0, list(robot.displaced)] = np.arange(features.displaced)
         return cls(rod=pack_rod(robot), dyn=pack_dynamics(robot), tendon=tendon, grid=grid, term_node=term_node,
                    pforce=point_f, pnode=point_node, dnext=dnext, tmode=tmode, route=route_table(robot), tendon_len=tendon_len,
-                   obst=pack_obstacles(robot), features=features,
+                   obst=pack_obstacles(robot), features=features, sect=pack_sections(robot, grid),
                    tipc=np.zeros((1, layout.TC_WIDTH)) if not features.tip else robot.tip_constraint.table(), straight=StraightRod.of(robot))
 
     @property
@@ -319,10 +351,15 @@ class StraightRod:
     def of(cls, robot: Robot) -> "StraightRod":
         e3 = np.array([0.0, 0.0, 1.0])
         L = robot.length
-        sec = robot.section()
-        fe = (robot.density * sec["area"])[:, None] * robot.gravity
-        n0 = robot.tip_force + fe * L[:, None]
-        m0 = robot.tip_moment + _cross(L[:, None] * e3, robot.tip_force) + _cross(0.5 * (L**2)[:, None] * e3, fe)
+        if robot.sections:  # the weight and its moment about the base
+            mass, moment = weight_moments(robot)
+            n0 = robot.tip_force + mass[:, None] * robot.gravity
+            m_weight = _cross(moment[:, None] * e3, robot.gravity)
+        else:
+            fe = (robot.density * robot.section()["area"])[:, None] * robot.gravity
+            n0 = robot.tip_force + fe * L[:, None]
+            m_weight = _cross(0.5 * (L**2)[:, None] * e3, fe)
+        m0 = robot.tip_moment + _cross(L[:, None] * e3, robot.tip_force) + m_weight
         K = robot.n_tendons
         t = arm = norm = np.zeros((1, K, 3))
         path = np.zeros((1, K))
@@ -411,6 +448,8 @@ def put_model(kern, dev: Device, tables: Tables, lo: int, hi: int):
     md.obst = dev.array(_pad(tables.rows("obst", lo, hi), (1, layout.OB_WIDTH)))
     md.tipc = dev.array(tables.rows("tipc", lo, hi))
     md.near = dev.array(np.ones((hi - lo, tables.grid.shape[1]) if tables.features.contact else (1, 1)), np.int32)
+    md.sect = dev.array(tables.rows("sect", lo, hi))
+    md.n_sect = tables.sect.shape[1] if tables.features.sections else 0
     md.n_tendons = tables.tendon.shape[1]
     md.n_points = tables.pforce.shape[1]
     md.n_obst = tables.obst.shape[1]

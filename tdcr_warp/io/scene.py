@@ -21,6 +21,7 @@ import numpy as np
 
 from tdcr_warp.io.drawing import display_options
 from tdcr_warp.io.inputs import SCENE_LIMIT, TABLE_LIMIT, read_limited
+from tdcr_warp.model.backbone import Section
 from tdcr_warp.model.checks import is_number
 from tdcr_warp.model.options import StaticOptions, check_model_support
 from tdcr_warp.model.robot import (
@@ -424,10 +425,30 @@ def _tendon(t: Fields) -> Tendon:
     return _build(Tendon, kw, t.where)
 
 
+BACKBONE = ("youngs_modulus", "poisson_ratio", "radius", "density")  # [robot] keys that [[sections]] replace
+
+
+def _sections(scene: Fields, robot: Fields) -> dict:
+    """{"sections": [Section, ...]} from [[sections]] ({} without: then [robot] needs its four backbone
+    keys); with them [robot] must leave those keys out."""
+    tables = scene.tables("sections")
+    given = [k for k in BACKBONE if k in robot]
+    if not tables:
+        missing = [k for k in BACKBONE if k not in robot]
+        if missing:
+            raise InputError(f"missing key {missing[0]!r} in [robot] (or describe the backbone by [[sections]])")
+        return {}
+    if given:
+        raise InputError(f"[robot].{given[0]} = {_show(robot.raw[given[0]])} with [[sections]]: the sections give "
+                         "the backbone (leave youngs_modulus, poisson_ratio, radius and density out of [robot])")
+    return {"sections": [_build(Section, t.given(), t.where) for t in tables]}
+
+
 def _robot(scene: Fields) -> Robot:
     """[robot], [[tendons]], [loads] (with [[loads.point_forces]]), the damping of [dynamics],
     [[obstacles]] and [tip]."""
-    kw = scene.table("robot").given()
+    robot = scene.table("robot")
+    kw = robot.given() | _sections(scene, robot)
     tendons = [_tendon(t) for t in scene.tables("tendons")]
     points = []
     loads = scene.table("loads")

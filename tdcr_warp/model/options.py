@@ -209,7 +209,9 @@ def check_model_support(robot: Robot, model: str, dynamic: bool = False) -> None
     that the solver model ``model`` does not solve: the disk model ("disks") is static,
     frictionless and without contact; the closed form ("constant_curvature") is static too, and
     has no friction, contact, displacement control or held tip. Checked where a scene is read,
-    after the command line's --model, and where the solvers start."""
+    after the command line's --model, and where the solvers start. A backbone with sections is
+    solved by the static coupled and point models only (``_check_sections``)."""
+    _check_sections(robot, model, dynamic)
     if model not in ("disks", "constant_curvature"):
         return
     found = [f"friction (tendons[{k}].friction = {_shown(t.friction)})" for k, t in enumerate(robot.tendons)
@@ -226,3 +228,22 @@ def check_model_support(robot: Robot, model: str, dynamic: bool = False) -> None
         static = "static, frictionless and without contact" if model == "disks" else "a static closed form"
         raise InputError(f"solver model = \"{model}\" ({static}) does not support {'; '.join(found)}: use model = "
                          "\"coupled\" or \"point\"")
+
+
+def _check_sections(robot: Robot, model: str, dynamic: bool) -> None:
+    """An InputError naming what a backbone with sections is not solved with yet: the solver models
+    "disks" and "constant_curvature", dynamics, friction, displacement control, obstacles, a held tip."""
+    if not robot.sections:
+        return
+    found = [f"solver model = \"{model}\""] if model in ("disks", "constant_curvature") else []
+    found += [f"friction (tendons[{k}].friction = {_shown(t.friction)})" for k, t in enumerate(robot.tendons)
+              if np.any(t.friction > 0)]
+    found += [f"displacement control (tendons[{k}].control = \"displacement\")"
+              for k, t in enumerate(robot.tendons) if t.control == "displacement"]
+    found += [f"obstacles ({len(robot.obstacles)} [[obstacles]])"] if robot.obstacles else []
+    found += ["a held tip ([tip])"] if robot.tip_constraint is not None else []
+    found += ["dynamics (time stepping: simulate, control, search, gain-grid)"] if dynamic else []
+    if found:
+        raise InputError(f"a backbone with sections ([[sections]]) is solved by the static \"coupled\" and \"point\" "
+                         f"models without friction, displacement control, obstacles or a held tip; not with "
+                         f"{'; '.join(found)}")

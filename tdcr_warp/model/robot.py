@@ -14,11 +14,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from tdcr_warp.model.backbone import SEC_COLUMNS, Section, check_sections, section_properties, section_table
 from tdcr_warp.model.checks import InputError, as_field, check_values, real_array, require_memory
 from tdcr_warp.model.world import Obstacle, TipConstraint
 
-__all__ = ["InputError", "Obstacle", "PointForce", "Robot", "Tendon", "TipConstraint", "check_command", "check_displacements",
-           "check_slip", "check_tensions", "real_array", "require_memory", "route_table"]
+__all__ = ["InputError", "Obstacle", "PointForce", "Robot", "Section", "Tendon", "TipConstraint", "check_command",
+           "check_displacements", "check_slip", "check_tensions", "real_array", "require_memory", "route_table"]
 
 MAX_DISKS = 100_000  # spacer disks of a robot: each is a grid node, and StaticOptions.nodes <= 100000
 
@@ -168,14 +169,15 @@ class Robot:
     [1/m] (body frame), gravity [m/s^2], tip_force [N], tip_moment [N m] (world frame): (3,) or (B, 3). tendons:
     sequence of :class:`Tendon`; point_forces: sequence of :class:`PointForce`. disks, disk_mass: the spacer disks
     of the tendon model "disks" (``_set_disk_fields``). obstacles: :class:`Obstacle` s, tip_constraint: a
-    :class:`TipConstraint` or None (tdcr_warp.model.world).
+    :class:`TipConstraint` or None (tdcr_warp.model.world). sections: :class:`Section` s along s
+    (tdcr_warp.model.backbone; then the four backbone numbers are those at the base: ``_set_sections``).
     """
 
     length: object = 0.5
-    youngs_modulus: object = 190e9
-    poisson_ratio: object = 0.3
-    radius: object = 1e-3
-    density: object = 7800.0
+    youngs_modulus: object = None
+    poisson_ratio: object = None
+    radius: object = None
+    density: object = None
     precurvature: object = (0.0, 0.0, 0.0)
     tendons: tuple = ()
     gravity: object = (0.0, 0.0, 0.0)
@@ -190,9 +192,12 @@ class Robot:
     disk_mass: object = 0.0
     obstacles: tuple = ()
     tip_constraint: object = None
+    sections: tuple = ()
     batch_size: int = field(init=False)
+    section_rows: np.ndarray = field(init=False, repr=False, compare=False)  # (S, 12): backbone.section_table
 
     def __post_init__(self):
+        _set_sections(self)
         for name in SCALARS:
             object.__setattr__(self, name, as_field(name, getattr(self, name), ()))
         for name in VECTORS:
@@ -218,17 +223,22 @@ class Robot:
         return _stack_cols(cols)
 
     def section(self) -> dict[str, np.ndarray]:
-        """Cross-section and stiffness per rod (leading 1 or B): A, I, Kse, Kbt (computed once, read-only)."""
+        """Cross-section and stiffness per rod (leading 1 or B): A, I, Kse, Kbt (computed once, read-only); with
+        sections, those at the base."""
         return self._section
 
     def _compute_section(self) -> dict[str, np.ndarray]:
-        E, nu, r = self.youngs_modulus, self.poisson_ratio, self.radius
-        G = E / (2.0 * (1.0 + nu))
-        A = math.pi * r**2
-        Ixx = math.pi * r**4 / 4.0
-        kse = np.stack(np.broadcast_arrays(G * A, G * A, E * A), axis=-1)
-        kbt = np.stack(np.broadcast_arrays(E * Ixx, E * Ixx, G * 2.0 * Ixx), axis=-1)
-        sec = {"area": A, "inertia": Ixx, "kse": kse, "kbt": kbt}
+        if self.sections:
+            at = section_properties(self.section_rows, np.zeros(1))
+            sec = {k: at[k] for k in ("area", "inertia", "kse", "kbt")}
+        else:
+            E, nu, r = self.youngs_modulus, self.poisson_ratio, self.radius
+            G = E / (2.0 * (1.0 + nu))
+            A = math.pi * r**2
+            Ixx = math.pi * r**4 / 4.0
+            kse = np.stack(np.broadcast_arrays(G * A, G * A, E * A), axis=-1)
+            kbt = np.stack(np.broadcast_arrays(E * Ixx, E * Ixx, G * 2.0 * Ixx), axis=-1)
+            sec = {"area": A, "inertia": Ixx, "kse": kse, "kbt": kbt}
         for v in sec.values():
             v.flags.writeable = False
         return sec
@@ -325,6 +335,36 @@ def _items(name: str, items, kind: type) -> tuple:
         if not isinstance(it, kind):
             raise InputError(f"{name}[{i}]: expected {kind.__name__}, got {type(it).__name__}")
     return items
+
+
+DEFAULTS = {"youngs_modulus": 190e9, "poisson_ratio": 0.3, "radius": 1e-3, "density": 7800.0}
+
+
+def _set_sections(robot: Robot) -> None:
+    """Without sections: the default backbone numbers where none is given. With sections: the
+    sections checked, and youngs_modulus, poisson_ratio, radius and density the first section's at
+    the base (a value given must be that one: the sections give the backbone)."""
+    table = np.zeros((0, len(SEC_COLUMNS)))
+    if robot.sections:
+        sections = check_sections(robot.sections, as_field("length", robot.length, ()))
+        object.__setattr__(robot, "sections", sections)
+        table = section_table(sections)
+        first = sections[0]
+        E0, G0 = float(first.youngs_modulus[0]), float(first.shear[0])
+        base = {"youngs_modulus": E0, "poisson_ratio": E0 / (2.0 * G0) - 1.0, "radius": float(first.radius[0]),
+                "density": float(first.density[0])}
+        for name, value in base.items():
+            given = getattr(robot, name)
+            if given is not None and np.any(np.abs(as_field(name, given, ()) - value) > 1e-12 * abs(value)):
+                raise InputError(f"{name} = {given!r} with sections: the sections give the backbone (here "
+                                 f"{value!r} at the base); leave {name} unset")
+            object.__setattr__(robot, name, value)
+    else:
+        for name, value in DEFAULTS.items():
+            if getattr(robot, name) is None:
+                object.__setattr__(robot, name, value)
+    table.flags.writeable = False
+    object.__setattr__(robot, "section_rows", table)
 
 
 def _check_ranges(robot: Robot) -> None:

@@ -114,6 +114,8 @@ PER_ROD = "() or (B,)"
 VECTOR = "(3,) or (B, 3)"
 ROWS = "(K,) or (B, K)"
 ROUTINGS = ("straight", "helix", "linear", "points")
+WITHOUT_SECTIONS = "required without [[sections]] (with them: not given)"
+PAIR = "() or (2,)"
 HELIX = ("routing", ("helix",))
 PATHS = ("circle", "line", "waypoints")
 DISPLACEMENT_RANGE = Key("displacement_range", "numbers", "m", "the motors' range [lo, hi] (tendons under "
@@ -122,10 +124,10 @@ DISPLACEMENT_RANGE = Key("displacement_range", "numbers", "m", "the motors' rang
 _TABLES = (
     Table("robot", "The rods: a batch of B, clamped at the origin and leaving along +z.", required=True, keys=(
         Key("length", "numbers", "m", "rod length L", PER_ROD, REQUIRED),
-        Key("youngs_modulus", "numbers", "Pa", "Young's modulus E", PER_ROD, REQUIRED),
-        Key("poisson_ratio", "numbers", "-", "Poisson's ratio, in (-1, 0.5)", PER_ROD, REQUIRED),
-        Key("radius", "numbers", "m", "backbone radius", PER_ROD, REQUIRED),
-        Key("density", "numbers", "kg/m^3", "backbone density", PER_ROD, REQUIRED),
+        Key("youngs_modulus", "numbers", "Pa", "Young's modulus E", PER_ROD, default_text=WITHOUT_SECTIONS),
+        Key("poisson_ratio", "numbers", "-", "Poisson's ratio, in (-1, 0.5)", PER_ROD, default_text=WITHOUT_SECTIONS),
+        Key("radius", "numbers", "m", "backbone radius", PER_ROD, default_text=WITHOUT_SECTIONS),
+        Key("density", "numbers", "kg/m^3", "backbone density", PER_ROD, default_text=WITHOUT_SECTIONS),
         Key("precurvature", "numbers", "1/m", "precurvature u* (body frame)", VECTOR, default_text="[0, 0, 0]"),
         Key("disk_radius", "numbers", "m", "spacer disks' radius: every tendon route must stay inside it",
             PER_ROD, default_text="unchecked"),
@@ -134,6 +136,22 @@ _TABLES = (
             default_text="none"),
         Key("disk_mass", "number", "kg", "each spacer disk's mass (its weight acts at the disk, model \"disks\")",
             "", 0.0),
+    )),
+    Table("sections", "A backbone that varies along s: one table per section, base to tip, each from the previous "
+          "one's end; a value is a number or [at its start, at its end], linear in s between (a taper), and may jump "
+          "between sections. Shared by the batch; statics, \"coupled\" and \"point\" models, without friction, "
+          "displacement control, obstacles or [tip] (docs/physics.md).", array=True, parser="tdcr_warp.io.scene",
+          keys=(
+        Key("end", "number", "m", "arc length where the section ends (increasing; the last: the rod length)", "",
+            REQUIRED),
+        Key("radius", "numbers", "m", "outer radius", PAIR, REQUIRED),
+        Key("inner_radius", "numbers", "m", "inner radius of a tube (0: solid), below radius", PAIR, 0.0),
+        Key("youngs_modulus", "numbers", "Pa", "Young's modulus E", PAIR, REQUIRED),
+        Key("poisson_ratio", "numbers", "-", "Poisson's ratio, in (-1, 0.5): G = E / (2 (1 + nu)) at each end", PAIR,
+            default_text="exactly one of poisson_ratio and shear_modulus"),
+        Key("shear_modulus", "numbers", "Pa", "shear modulus G", PAIR,
+            default_text="exactly one of poisson_ratio and shear_modulus"),
+        Key("density", "numbers", "kg/m^3", "density", PAIR, REQUIRED),
     )),
     Table("tendons", "One table per tendon, in order (routing in the body/disk frame).", array=True, keys=(
         Key("offset", "numbers", "m", "[x, y] of the route at the base", "(2,) or (B, 2)",

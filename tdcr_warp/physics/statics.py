@@ -524,7 +524,7 @@ def armed_segments(tables: Tables, opts: StaticOptions) -> int | None:
         raise InputError(f"solver segments must be at most nodes = {opts.nodes}, got {opts.segments}")
     if opts.segments not in (None, 1) and not segmentable:
         raise InputError(f"solver segments = {opts.segments} (multiple shooting) needs a robot without "
-                         "displacement control, friction, a constrained tip or disks")
+                         "displacement control, friction, a constrained tip, disks or sections")
     return opts.segments if segmentable else 1
 
 
@@ -763,6 +763,11 @@ def solve_static(robot: Robot, tensions=None, *, displacements=None, slip=None, 
     the motor's given length is held, not the displacement).
     """
     opts = _options(options, overrides)
+    if robot.sections:
+        check_model_support(robot, opts.model)
+    if robot.sections and (opts.sensitivities or parameters or opts.stability == "stable"):
+        raise InputError("a backbone with sections has no sensitivities or stable-branch search yet: drop "
+                         "sensitivities / parameters / stability = 'stable'")
     if robot.tip_constraint is not None and (opts.sensitivities or parameters or opts.stability == "stable"):
         raise InputError("a constrained tip has no sensitivities or stable-branch search yet (the tip is held): "
                          "drop tip_constraint, or sensitivities / parameters / stability = 'stable'")
