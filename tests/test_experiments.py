@@ -14,9 +14,6 @@ SCRIPTS = sorted(p for p in (ROOT / "experiments").glob("*.py") if not p.name.st
 def test_experiment_smoke(script, tmp_path):
     if script.name == "bench_ray.py":
         pytest.importorskip("ray")
-    if script.name == "hardware_families.py":  # with the data present its smoke fits 6 models x 3 splits: ~16 min
-        pytest.skip("hardware_families.py: its smoke failed and took ~16 min on 2 cores in CI (2026-12-05); "
-                    "to be cut to one model and split and fixed, run by hand meanwhile")
     if script.name == "jax_port.py":  # optional extra "bench"; even at --smoke its JAX compiles take minutes
         pytest.skip("jax_port.py: run by hand (python experiments/jax_port.py --smoke)")
     spec = importlib.util.spec_from_file_location(script.stem, script)
